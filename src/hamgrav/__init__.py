@@ -1,0 +1,2 @@
+"""hamgrav: gravity fields of small bodies learned from tracking arcs."""
+__version__ = "0.1.0"
