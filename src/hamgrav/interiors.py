@@ -163,6 +163,39 @@ def head_lobe_mask(points: np.ndarray) -> np.ndarray:
     return beyond if beyond.sum() < (~beyond).sum() else ~beyond
 
 
+def _head_region(body: Body, points: np.ndarray) -> tuple[np.ndarray, str]:
+    """The head lobe: taken from the body's reference head/tail mascons when it has them
+    (their denser points, matched to ours by nearest neighbour), else from the neck split."""
+    files = body.data_files
+    if "mascons_head_tail_2x" in files and "mascons" in files:
+        contrast_set = _read_mascon_csv(files["mascons_head_tail_2x"])
+        uniform_set = _read_mascon_csv(files["mascons"])
+        ratio = contrast_set[:, 3] / uniform_set[:, 3]
+        reference_head = ratio > np.sqrt(ratio.min() * ratio.max())
+        ref_points = body.units.to_length(contrast_set[:, :3]) - (
+            np.asarray(body.origin_m) / body.units.length_m
+        )
+        _, nearest = cKDTree(ref_points).query(points)
+        return reference_head[nearest], f"reference file {files['mascons_head_tail_2x'].name}"
+    return head_lobe_mask(points), "neck split along the long axis"
+
+
+def _read_mascon_csv(path) -> np.ndarray:
+    """Columns x_m, y_m, z_m, mass_fraction of a (gzipped) reference mascon file."""
+    import gzip
+
+    from .bodies import BodyDataError
+
+    try:
+        with gzip.open(path, "rt") as fh:
+            data = np.loadtxt(fh, delimiter=",", skiprows=1)
+    except (OSError, ValueError, EOFError) as exc:
+        raise BodyDataError(f"cannot read mascon file {path}: {exc}; restore it") from None
+    if data.ndim != 2 or data.shape[1] != 4:
+        raise BodyDataError(f"mascon file {path} must have 4 columns x_m,y_m,z_m,mass_fraction")
+    return data
+
+
 def _surface_radius(body: Body, directions: np.ndarray) -> np.ndarray:
     """Distance from the origin to the outermost surface crossing along each unit direction."""
     origins = np.zeros_like(directions)
@@ -201,9 +234,13 @@ def build_truth(
     if interior == "head-tail":
         if contrast <= 0:
             raise ValueError("contrast must be positive")
-        head = head_lobe_mask(points)
+        head, definition = _head_region(body, points)
         weights[head] = contrast
-        parameters |= {"contrast": contrast, "head_volume_fraction": float(head.mean())}
+        parameters |= {
+            "contrast": contrast,
+            "head_volume_fraction": float(head.mean()),
+            "head_definition": definition,
+        }
     elif interior == "void":
         if not 0 < void_fraction < 0.9:
             raise ValueError("void_fraction must lie in (0, 0.9)")

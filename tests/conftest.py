@@ -1,0 +1,42 @@
+import numpy as np
+import pytest
+
+from hamgrav.bodies import bodies_dir, load_body
+from hamgrav.interiors import build_truth
+from hamgrav.tracking import OrbitFamily, TrackingConfig, simulate_orbits
+
+
+@pytest.fixture(scope="session")
+def synthetic():
+    return load_body("synthetic")
+
+
+@pytest.fixture(scope="session")
+def synthetic_truth(synthetic):
+    return build_truth(synthetic, "head-tail", n_mascons=120, seed=1)
+
+
+@pytest.fixture(scope="session")
+def small_arcs(synthetic_truth):
+    families = [OrbitFamily(1.3, 20.0), OrbitFamily(1.6, 75.0), OrbitFamily(2.0, 45.0)]
+    tracking = TrackingConfig(arcs_per_orbit=3, window_spin_periods=0.5)
+    return simulate_orbits(synthetic_truth, families, tracking, seed=7)
+
+
+@pytest.fixture(scope="session")
+def data_folder():
+    folder = bodies_dir()
+    assert (folder / "catalogue.json").is_file(), (
+        f"body data folder {folder} is missing: set HAMGRAV_BODIES to the shared bodies folder"
+    )
+    return folder
+
+
+@pytest.fixture(scope="session")
+def itokawa(data_folder):
+    return load_body("itokawa")
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(1234)
