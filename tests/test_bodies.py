@@ -49,8 +49,9 @@ def test_catalogue_bodies_load(data_folder):
         assert body.brillouin_radius_m == pytest.approx(entry["brillouin_radius_m"], rel=1e-6)
 
 
-@pytest.mark.parametrize("name, paper", [("itokawa", 0.97), ("67p", 0.93), ("bennu", 0.84),
-                                         ("eros", 0.96)])
+@pytest.mark.parametrize(
+    "name, paper", [("itokawa", 0.97), ("67p", 0.93), ("bennu", 0.84), ("eros", 0.96)]
+)
 def test_envelope_fraction_matches_paper(data_folder, name, paper):
     # the paper quotes 96 % Eros, 97 % Itokawa, 93 % 67P, 84 % Bennu (rounded)
     assert load_body(name).envelope_fraction_inside_brillouin() == pytest.approx(paper, abs=0.015)
@@ -64,8 +65,9 @@ def _fake_folder(tmp_path, catalogue, mesh_text=None):
     return tmp_path
 
 
-GOOD_ENTRY = json.dumps({"rock": {"gm_m3_s2": 1.0, "spin_period_s": 1e4,
-                                  "files": {"mesh": "mesh.obj"}}})
+GOOD_ENTRY = json.dumps(
+    {"rock": {"gm_m3_s2": 1.0, "spin_period_s": 1e4, "files": {"mesh": "mesh.obj"}}}
+)
 
 
 def test_malformed_catalogue(monkeypatch, tmp_path):

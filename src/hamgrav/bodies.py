@@ -13,7 +13,6 @@ no data at all.
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -163,8 +162,10 @@ def _read_catalogue(folder: Path) -> dict:
 
 def _load_mesh(path: Path) -> trimesh.Trimesh:
     if not path.is_file():
-        raise BodyDataError(f"mesh file not found: {path}; restore it or point HAMGRAV_BODIES "
-                            "at a complete body data folder")
+        raise BodyDataError(
+            f"mesh file not found: {path}; restore it or point HAMGRAV_BODIES "
+            "at a complete body data folder"
+        )
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types on bad input
@@ -295,4 +296,3 @@ def contact_binary(
 SYNTHETIC_BODIES = {
     "synthetic": contact_binary,
 }
-

@@ -85,7 +85,9 @@ class Campaign:
         tracking = data.get("tracking", {})
         unknown = set(tracking) - _TRACKING_KEYS
         if unknown:
-            fail(f"unknown key(s) in [tracking] {sorted(unknown)}; allowed: {sorted(_TRACKING_KEYS)}")
+            fail(
+                f"unknown key(s) in [tracking] {sorted(unknown)}; allowed: {sorted(_TRACKING_KEYS)}"
+            )
         try:
             tracking_config = TrackingConfig(**tracking)
             n_mascons = int(data.get("n_mascons", DEFAULT_TRUTH_MASCONS))

@@ -132,7 +132,10 @@ def compress(points: np.ndarray, weights: np.ndarray, n_mascons: int, seed: int 
     labels = kmeans_labels(points, n_mascons, seed=seed)
     mass = np.bincount(labels, weights=weights, minlength=n_mascons)
     moment = np.stack(
-        [np.bincount(labels, weights=weights * points[:, i], minlength=n_mascons) for i in range(3)],
+        [
+            np.bincount(labels, weights=weights * points[:, i], minlength=n_mascons)
+            for i in range(3)
+        ],
         axis=1,
     )
     used = mass > 0

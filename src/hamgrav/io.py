@@ -46,6 +46,9 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
         raise DatasetError(f"output folder {path.parent} does not exist; create it first")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix + ".part", dir=path.parent)
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes owner-only files; final files follow umask
     try:
         yield Path(tmp)
         os.replace(tmp, path)

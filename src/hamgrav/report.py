@@ -14,8 +14,9 @@ __all__ = ["body_report", "PERTURBATION_SHELLS_RB"]
 PERTURBATION_SHELLS_RB = (1.1, 2.0, 3.0)
 
 
-def body_report(body: Body, *, n_mascons: int = DEFAULT_TRUTH_MASCONS, seed: int = 0,
-                n_directions: int = 500) -> dict:
+def body_report(
+    body: Body, *, n_mascons: int = DEFAULT_TRUTH_MASCONS, seed: int = 0, n_directions: int = 500
+) -> dict:
     """Physical constants, Brillouin radius, envelope and perturbation figures of ``body``.
 
     The perturbation ratios (median |a_perturbing| / |a_central| on shells r / R_B) and the
@@ -48,7 +49,8 @@ def body_report(body: Body, *, n_mascons: int = DEFAULT_TRUTH_MASCONS, seed: int
         "truth_mascons": len(truth.mascons),
         "uniform_truth_vs_polyhedron_r1.05": {
             "total_potential_rel_error": relative_field_error(v_masc, v_poly),
-            "perturbing_potential_rel_error": relative_field_error(v_masc - central,
-                                                                   v_poly - central),
+            "perturbing_potential_rel_error": relative_field_error(
+                v_masc - central, v_poly - central
+            ),
         },
     }

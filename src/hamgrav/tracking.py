@@ -90,7 +90,9 @@ def orbit_grid(count: int, radius_rb: tuple[float, float], inclination_deg: tupl
     return [OrbitFamily(float(r), float(i)) for r in radii for i in incl]
 
 
-def circular_orbit_state(radius: float, inclination_rad: float, raan_rad: float, arg_lat_rad: float):
+def circular_orbit_state(
+    radius: float, inclination_rad: float, raan_rad: float, arg_lat_rad: float
+):
     """Canonical (q, p) at t = 0 of a circular Keplerian orbit (mu = 1).
 
     At t = 0 the rotating and inertial frames coincide and p is the inertial velocity.
@@ -231,8 +233,22 @@ def simulate_orbits(
     sigma_v = tracking.velocity_noise_ratio * sigma_r  # omega = 1 in canonical units
     r_b = truth.body.brillouin_radius
 
-    all_times, all_true, traj, info = [], [], [], {k: [] for k in (
-        "radius_rb", "inclination_deg", "raan_deg", "arg_lat_deg", "initial_state", "redraws")}
+    all_times, all_true, traj, info = (
+        [],
+        [],
+        [],
+        {
+            k: []
+            for k in (
+                "radius_rb",
+                "inclination_deg",
+                "raan_deg",
+                "arg_lat_deg",
+                "initial_state",
+                "redraws",
+            )
+        },
+    )
     for k, family in enumerate(families):
         starts = _arc_start_times(rng, tracking.arcs_per_orbit, window, arc_offsets[-1])
         sample_times = (starts[:, None] + arc_offsets[None, :]).ravel()
@@ -240,7 +256,7 @@ def simulate_orbits(
         check = np.linspace(0.0, window, int(window / 0.005) + 1)
         grid = np.unique(np.concatenate([check, sample_times]))
         where = np.searchsorted(grid, sample_times)
-        for attempt in range(tracking.max_redraws):
+        for attempt in range(tracking.max_redraws):  # noqa: B007 (kept: redraw count)
             raan, arg_lat = rng.uniform(0.0, 2.0 * math.pi, size=2)
             radius = family.radius_rb * r_b
             state0 = circular_orbit_state(

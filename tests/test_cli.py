@@ -1,0 +1,93 @@
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from hamgrav.cli import app
+from hamgrav.io import load_arcs
+
+runner = CliRunner()
+
+
+def test_bodies_lists_synthetic():
+    result = runner.invoke(app, ["bodies"])
+    assert result.exit_code == 0
+    assert result.stdout.splitlines()[0] == "synthetic"
+
+
+def test_body_json_synthetic():
+    result = runner.invoke(app, ["body", "synthetic", "--json", "--mascons", "200"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    for key in (
+        "name",
+        "gm_m3_s2",
+        "spin_period_s",
+        "synchronous_radius_m",
+        "brillouin_radius_m",
+        "envelope_fraction_inside_brillouin",
+    ):
+        assert key in report
+    assert set(report["perturbation_ratio"]) == {"1.1", "2.0", "3.0"}
+    ratios = report["perturbation_ratio"]
+    # the perturbation fades with distance
+    assert ratios["1.1"] > ratios["2.0"] > ratios["3.0"] > 0
+    assert 0.5 < report["envelope_fraction_inside_brillouin"] <= 1.0
+
+
+def test_body_table_has_units():
+    result = runner.invoke(app, ["body", "synthetic", "--mascons", "200"])
+    assert result.exit_code == 0
+    assert "GM [m^3/s^2]" in result.stdout and "Brillouin radius R_B [m]" in result.stdout
+
+
+def test_unknown_body_is_clear(monkeypatch, tmp_path):
+    monkeypatch.setenv("HAMGRAV_BODIES", str(tmp_path))
+    result = runner.invoke(app, ["body", "vesta"])
+    assert result.exit_code == 2
+    assert "body catalogue not found" in result.output
+
+
+CAMPAIGN = """
+body = "synthetic"
+interior = "uniform"
+n_mascons = 100
+seed = 5
+[orbits]
+families = [[1.5, 30.0], [1.9, 70.0]]
+[tracking]
+arcs_per_orbit = 2
+window_spin_periods = 0.3
+"""
+
+
+def test_simulate_writes_arcs(tmp_path):
+    toml = tmp_path / "c.toml"
+    toml.write_text(CAMPAIGN)
+    out = tmp_path / "arcs.h5"
+    result = runner.invoke(app, ["simulate", str(toml), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    arcs = load_arcs(out)
+    assert arcs.n_arcs == 4 and arcs.config["seed"] == 5 and arcs.interior == "uniform"
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ('body = "synthetic"\ncolour = 3\n[orbits]\ncount=1', "unknown key(s) ['colour']"),
+        ('body = "synthetic"\n', "an [orbits] table is required"),
+        (
+            'body = "synthetic"\n[orbits]\ncount = 1\n[tracking]\ncadense_s = 3',
+            "unknown key(s) in [tracking] ['cadense_s']",
+        ),
+        ('body = "synthetic"\ninterior = "solid"\n[orbits]\ncount=1', "interior 'solid'"),
+        ("body = ", "not valid TOML"),
+    ],
+)
+def test_simulate_bad_campaign(tmp_path, text, message):
+    toml = tmp_path / "c.toml"
+    toml.write_text(text)
+    result = runner.invoke(app, ["simulate", str(toml), "-o", str(tmp_path / "a.h5")])
+    assert result.exit_code == 2
+    assert message in " ".join(result.output.split())
+    assert not (tmp_path / "a.h5").exists()
