@@ -23,7 +23,7 @@ import heyoka as hy
 import numpy as np
 
 from .hamiltonian import POSITION, equations_of_motion, rotating_hamiltonian
-from .terms import SolarRadiationPressure, Term
+from .terms import SolarRadiationPressure, Term, term_from_description
 
 __all__ = [
     "Model",
@@ -92,6 +92,15 @@ class Model:
             "learnable": self.learnable.describe() if self.learnable else None,
             "srp": self.srp.describe() if self.srp else None,
         }
+
+    @classmethod
+    def from_description(cls, d: dict) -> Model:
+        """Rebuild a model from :meth:`describe` output."""
+        return cls(
+            known=tuple(term_from_description(t) for t in d["known"]),
+            learnable=term_from_description(d["learnable"]) if d.get("learnable") else None,
+            srp=term_from_description(d["srp"]) if d.get("srp") else None,
+        )
 
 
 def _cached(key: tuple, build):

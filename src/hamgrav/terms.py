@@ -34,6 +34,7 @@ __all__ = [
     "SphericalHarmonics",
     "SolarRadiationPressure",
     "sh_coefficients_of_mascons",
+    "term_from_description",
 ]
 
 x, y, z = POSITION
@@ -328,3 +329,22 @@ def sh_coefficients_of_mascons(mascons: MasconSet, degree: int, reference_radius
         trig = np.cos(m * lam) if kind == "C" else np.sin(m * lam)
         out.append(float(np.sum(common * trig)))
     return np.asarray(out)
+
+
+def term_from_description(d: dict) -> Term:
+    """Rebuild a term from :meth:`Term.describe` output (model files)."""
+    kind = d.get("kind")
+    if kind == "point-mass":
+        return PointMass(float(d["mu"]))
+    if kind == "mascons":
+        return MasconTerm(
+            MasconSet(np.asarray(d["positions"], float), np.asarray(d["masses"], float)),
+            str(d.get("label", "mascons")),
+        )
+    if kind == "network":
+        return NeuralPotential(tuple(d["hidden"]), float(d["scale"]), float(d["envelope_radius"]))
+    if kind == "sh":
+        return SphericalHarmonics(int(d["degree"]), float(d["reference_radius"]), float(d["mu"]))
+    if kind == "srp":
+        return SolarRadiationPressure(float(d["pressure_canonical"]), float(d["sun_latitude_deg"]))
+    raise ValueError(f"unknown term kind {kind!r}")
