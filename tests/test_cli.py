@@ -91,3 +91,59 @@ def test_simulate_bad_campaign(tmp_path, text, message):
     assert result.exit_code == 2
     assert message in " ".join(result.output.split())
     assert not (tmp_path / "a.h5").exists()
+
+
+@pytest.fixture(scope="module")
+def arcs_file(tmp_path_factory, small_arcs):
+    from hamgrav.io import save_arcs
+
+    return save_arcs(small_arcs, tmp_path_factory.mktemp("arcs") / "arcs.h5")
+
+
+def test_fit_evaluate_select(arcs_file, tmp_path):
+    model = tmp_path / "sh3.h5"
+    result = runner.invoke(app, ["fit", str(arcs_file), "--model", "sh:3", "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    assert not (tmp_path / "sh3.h5.checkpoint.npz").exists()
+    result = runner.invoke(app, ["evaluate", str(model), "--shells", "1.2,1.5", "--json"])
+    assert result.exit_code == 0, result.output
+    errors = json.loads(result.stdout)["field_error"]
+    assert set(errors) == {"r1.2", "r1.5", "h30m"}
+    assert errors["r1.5"] < 1.0  # better than no correction on a shell above the arcs' floor
+    pool = tmp_path / "pool.toml"
+    pool.write_text(
+        'body = "synthetic"\n[orbits]\ncount = 4\nradius_rb = [1.4, 2.0]\n'
+        "inclination_deg = [0, 90]\n[tracking]\narcs_per_orbit = 2\n"
+        "window_spin_periods = 0.2\n"
+    )
+    picks = tmp_path / "picks.json"
+    result = runner.invoke(
+        app, ["select", str(model), "--pool", str(pool), "--picks", "2", "-o", str(picks)]
+    )
+    assert result.exit_code == 0, result.output
+    rows = json.loads(picks.read_text())["picks"]
+    assert len(rows) == 2 and rows[0]["gain"] > rows[1]["gain"] > 0
+
+
+def test_fit_network_writes_model(arcs_file, tmp_path):
+    from hamgrav.modelfile import load_model
+
+    model = tmp_path / "nn.h5"
+    result = runner.invoke(
+        app, ["fit", str(arcs_file), "--hidden", "8", "--steps", "4", "-o", str(model)]
+    )
+    assert result.exit_code == 0, result.output
+    fitted = load_model(model, expect_body="synthetic")
+    assert fitted.model.n_learn == 3 * 8 + 8 + 8 + 1
+    assert fitted.solver["name"] == "adam"
+
+
+def test_fit_rejects_bad_options(arcs_file, tmp_path):
+    out = tmp_path / "m.h5"
+    result = runner.invoke(app, ["fit", str(arcs_file), "--model", "sh:1", "-o", str(out)])
+    assert result.exit_code == 2 and "--model must be 'network' or 'sh:L'" in result.output
+    result = runner.invoke(app, ["fit", str(arcs_file), "--kaula", "1e-6", "-o", str(out)])
+    assert result.exit_code == 2 and "--kaula applies to spherical-harmonics" in result.output
+    result = runner.invoke(app, ["fit", str(arcs_file), "--resume", "-o", str(out)])
+    assert result.exit_code == 2 and "no checkpoint" in result.output
+    assert not out.exists()

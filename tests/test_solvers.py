@@ -96,3 +96,30 @@ def test_cosine_schedule():
     assert adam.learning_rate_at(0) == pytest.approx(1e-2)
     assert adam.learning_rate_at(50) == pytest.approx(0.55e-2)
     assert adam.learning_rate_at(100) == pytest.approx(1e-3)
+
+
+def test_adam_resumes_exactly(small_arcs):
+    nn = NeuralPotential((8,))
+    problem = ArcProblem(Model((PointMass(),), nn), small_arcs)
+    train, val = split_validation(small_arcs.n_arcs, 0.2, 1)
+    adam = Adam(steps=8, batch_size=3, eval_every=2, seed=2)
+    full = adam.solve(problem, nn.initial_params(0), train=train, validation=val)
+    saved = {}
+
+    def keep(theta, state):
+        if state["step"] == 4:
+            saved.update(theta=theta.copy(), state=state)
+
+    adam.solve(
+        problem,
+        nn.initial_params(0),
+        train=train,
+        validation=val,
+        checkpoint=keep,
+        checkpoint_every=2,
+    )
+    resumed = adam.solve(
+        problem, saved["theta"], train=train, validation=val, resume=saved["state"]
+    )
+    assert np.array_equal(resumed.params, full.params)
+    assert resumed.history["validation"] == full.history["validation"]

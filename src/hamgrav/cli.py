@@ -133,6 +133,268 @@ def simulate(
     )
 
 
+def _parse_model_option(model: str) -> tuple[str, int]:
+    if model == "network":
+        return "network", 0
+    if model.startswith("sh:") and model[3:].isdigit() and int(model[3:]) >= 2:
+        return "sh", int(model[3:])
+    raise ValueError(f"--model must be 'network' or 'sh:L' with L >= 2 (e.g. sh:8), got {model!r}")
+
+
+def _parse_floats(text: str, name: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
+
+
+@app.command()
+def fit(
+    arcs_file: Annotated[Path, typer.Argument(metavar="ARCS", help="Arcs file (HDF5).")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Model file to write.")],
+    model: Annotated[str, typer.Option(help="'network' or 'sh:L'.")] = "network",
+    hidden: Annotated[str, typer.Option(help="Hidden layer sizes of the network.")] = "24,24",
+    prior: Annotated[
+        str | None, typer.Option(help="'shape': constant-density shape prior in the known part.")
+    ] = None,
+    solver: Annotated[
+        str | None, typer.Option(help="'adam' or 'lm' (default: adam for the network, lm for SH).")
+    ] = None,
+    weighted: Annotated[bool, typer.Option(help="Divide residuals by the noise sigmas.")] = False,
+    kaula: Annotated[
+        str | None,
+        typer.Option(help="Kaula weight ALPHA, or 'scan' (1e-8..1e-4, best 1.05 R_B field error)."),
+    ] = None,
+    init: Annotated[Path | None, typer.Option(help="Warm start from this model file.")] = None,
+    steps: Annotated[int, typer.Option(help="Adam steps.")] = 300,
+    learning_rate: Annotated[float, typer.Option(help="Adam peak learning rate.")] = 1e-2,
+    seed: Annotated[int, typer.Option(help="Seed (initialisation, split, batches).")] = 0,
+    resume: Annotated[
+        bool, typer.Option(help="Continue an interrupted fit from its checkpoint.")
+    ] = False,
+) -> None:
+    """Fit a gravity correction to tracking arcs and write the model file."""
+    from .estimator import GravityEstimator
+    from .evaluate import evaluation_sets, field_errors
+    from .io import load_arcs
+    from .modelfile import (
+        checkpoint_path_for,
+        load_checkpoint,
+        load_model,
+        save_checkpoint,
+        save_model,
+    )
+
+    try:
+        term, degree = _parse_model_option(model)
+        hidden_sizes = tuple(int(h) for h in _parse_floats(hidden, "--hidden"))
+        if prior not in (None, "shape"):
+            raise ValueError(f"--prior must be 'shape', got {prior!r}")
+        kaula_value: float | str | None = None
+        if kaula is not None:
+            kaula_value = "scan" if kaula == "scan" else _parse_floats(kaula, "--kaula")[0]
+            if term != "sh":
+                raise ValueError("--kaula applies to spherical-harmonics models (--model sh:L)")
+        arcs = load_arcs(arcs_file)
+        output.parent.mkdir(parents=True, exist_ok=True)
+        ckpt = checkpoint_path_for(output)
+
+        def kaula_metric(params, fit_model):
+            from .estimator import body_for_arcs
+
+            sets = evaluation_sets(body_for_arcs(arcs), (1.05,), ())
+            return field_errors(fit_model, params, arcs.truth, sets)["r1.05"]
+
+        estimator = GravityEstimator(
+            term,
+            hidden=hidden_sizes,
+            degree=degree,
+            prior=prior,
+            solver=solver,
+            weighted=weighted,
+            kaula=kaula_value,
+            kaula_metric=kaula_metric,
+            adam_steps=steps,
+            learning_rate=learning_rate,
+            seed=seed,
+        )
+        theta0, resume_state = None, None
+        if init is not None:
+            theta0 = load_model(init, expect_body=arcs.body_name).params
+        if resume:
+            if not ckpt.exists():
+                raise ValueError(f"no checkpoint {ckpt} to resume from; run without --resume")
+            theta0, resume_state = load_checkpoint(ckpt)
+        with _progress() as progress:
+            task = progress.add_task(
+                "fitting", total=steps if estimator._solver().__class__.__name__ == "Adam" else None
+            )
+
+            def on_iteration(it, record):
+                text = " ".join(f"{k} {v:.3e}" for k, v in record.items() if isinstance(v, float))
+                progress.update(task, completed=it, description=f"fitting [{text}]")
+
+            estimator.fit(
+                arcs,
+                init=theta0,
+                callback=on_iteration,
+                checkpoint=lambda th, st: save_checkpoint(ckpt, th, st),
+                resume=resume_state,
+            )
+        fitted = estimator.fitted_
+        fitted.solver["arcs_file"] = str(arcs_file)
+        save_model(fitted, output)
+        ckpt.unlink(missing_ok=True)
+    except KeyboardInterrupt:
+        err.print(
+            f"interrupted; the last checkpoint is kept: resume with the same command "
+            f"and --resume ({checkpoint_path_for(output)})"
+        )
+        raise typer.Exit(code=130) from None
+    except _USER_ERRORS as exc:
+        _fail(exc)
+    result = estimator.result_
+    console.print(
+        f"wrote {output}: {estimator.model_.learnable.describe()['kind']} with "
+        f"{estimator.model_.n_learn} parameters, {result.iterations} iterations in "
+        f"{result.wall_s:.1f} s ({result.message})"
+    )
+
+
+@app.command()
+def evaluate(
+    model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
+    shells: Annotated[str, typer.Option(help="Shell radii r / R_B.")] = "1.05,1.1,1.2",
+    altitude: Annotated[str, typer.Option(help="Surface-following altitudes [m].")] = "30",
+    arcs_file: Annotated[
+        Path | None,
+        typer.Option("--arcs", help="Arcs whose truth to compare with (default: the fit's)."),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Relative field errors of a fitted model against the truth recorded with the arcs."""
+    from .estimator import body_for_arcs
+    from .evaluate import evaluation_sets, field_errors
+    from .io import load_arcs
+    from .modelfile import load_model
+
+    try:
+        fitted = load_model(model_file)
+        source = arcs_file or fitted.solver.get("arcs_file")
+        if not source:
+            raise ValueError("the model file records no arcs file; pass --arcs ARCS")
+        arcs = load_arcs(source)
+        if arcs.body_name != fitted.body_name:
+            raise ValueError(
+                f"arcs are of body {arcs.body_name!r}, the model of {fitted.body_name!r}"
+            )
+        body_obj = body_for_arcs(arcs)
+        sets = evaluation_sets(
+            body_obj, _parse_floats(shells, "--shells"), _parse_floats(altitude, "--altitude")
+        )
+        errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
+    except _USER_ERRORS as exc:
+        _fail(exc)
+    if as_json:
+        sys.stdout.write(json.dumps({"model": str(model_file), "field_error": errors}) + "\n")
+        return
+    table = Table(title=escape(f"relative field error of {model_file} ({fitted.body_name})"))
+    table.add_column("evaluation set")
+    table.add_column("epsilon", justify="right")
+    for name, value in errors.items():
+        label = f"shell {name[1:]} R_B" if name.startswith("r") else f"surface + {name[1:-1]} m"
+        table.add_row(label, f"{value:.4f}")
+    console.print(table)
+
+
+@app.command()
+def select(
+    model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Current model file.")],
+    pool: Annotated[
+        Path,
+        typer.Option(
+            help="Campaign TOML whose [orbits] and [tracking] describe the candidate pool."
+        ),
+    ],
+    picks: Annotated[int, typer.Option(help="How many orbits to pick.")] = 3,
+    seed: Annotated[int, typer.Option(help="Seed of the candidates' node and phase.")] = 0,
+    output: Annotated[
+        Path | None, typer.Option("-o", "--output", help="Write the picks as JSON.")
+    ] = None,
+) -> None:
+    """D-optimal choice of the next orbits from a candidate pool, from predicted sensitivities
+    at the current model (no measurements, no truth)."""
+    from .design import (
+        greedy_d_optimal,
+        predicted_arcs,
+        random_order_logdet,
+        trajectory_informations,
+    )
+    from .estimator import body_in_frame
+    from .modelfile import load_model
+
+    try:
+        fitted = load_model(model_file)
+        config = load_campaign(pool)
+        if config.body != fitted.body_name:
+            raise ValueError(
+                f"the pool is for body {config.body!r}, the model for {fitted.body_name!r}"
+            )
+        body_obj = body_in_frame(fitted.body_name, fitted.body_origin_m)
+        with _progress() as progress:
+            progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
+            candidates = predicted_arcs(
+                fitted.model,
+                fitted.params,
+                list(config.families),
+                config.tracking,
+                brillouin_radius=body_obj.brillouin_radius,
+                body_name=fitted.body_name,
+                gm_m3_s2=fitted.gm_m3_s2,
+                spin_period_s=fitted.spin_period_s,
+                seed=seed,
+            )
+            infos = trajectory_informations(
+                fitted.model, fitted.params[: fitted.model.n_learn], candidates
+            )
+        n_pick = min(picks, len(infos))
+        chosen, logdets, gains = greedy_d_optimal(infos, n_pick)
+        _, random_logdets = random_order_logdet(infos, n_pick, seed=seed)
+    except _USER_ERRORS as exc:
+        _fail(exc)
+    family_of = candidates.trajectory_info["candidate"]
+    rows = []
+    for k, (c, ld, g) in enumerate(zip(chosen, logdets, gains, strict=True)):
+        fam = config.families[int(family_of[c])]
+        rows.append(
+            {
+                "pick": k + 1,
+                "candidate": int(family_of[c]),
+                "radius_rb": fam.radius_rb,
+                "inclination_deg": fam.inclination_deg,
+                "gain": float(g),
+                "logdet": float(ld),
+                "random_order_logdet": float(random_logdets[k]),
+            }
+        )
+    table = Table(title="D-optimal picks (log det of the accumulated information)")
+    for col in ("pick", "candidate", "r / R_B", "incl. [deg]", "gain", "log det", "random order"):
+        table.add_column(col, justify="right")
+    for r in rows:
+        table.add_row(
+            str(r["pick"]),
+            str(r["candidate"]),
+            f"{r['radius_rb']:.2f}",
+            f"{r['inclination_deg']:.1f}",
+            f"{r['gain']:.2f}",
+            f"{r['logdet']:.2f}",
+            f"{r['random_order_logdet']:.2f}",
+        )
+    console.print(table)
+    if output is not None:
+        output.write_text(json.dumps({"model": str(model_file), "picks": rows}, indent=2) + "\n")
+
+
 @app.command()
 def demo(
     output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the outputs.")] = Path(

@@ -10,6 +10,7 @@ iteration history; ``callback(iteration, record)`` reports progress.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable
@@ -98,7 +99,11 @@ class LevenbergMarquardt:
         train: np.ndarray | None = None,
         validation: np.ndarray | None = None,
         callback: Callable[[int, dict], None] | None = None,
+        checkpoint: Callable[[np.ndarray, dict], None] | None = None,
+        resume: dict | None = None,
     ) -> SolveResult:
+        """Run LM. ``checkpoint(theta, state)`` is called after every accepted step; passing
+        the state back as ``resume`` (with theta as ``theta0``) continues from there."""
         start = time.perf_counter()
         theta = np.zeros(problem.n_params) if theta0 is None else np.array(theta0, dtype=float)
         kaula = self.kaula_alpha * kaula_diagonal(problem)
@@ -108,7 +113,7 @@ class LevenbergMarquardt:
 
         cost, atr, ata = problem.normal_equations(theta, train)
         cost = reg_cost(cost, theta)
-        lam = self.lambda0
+        lam = self.lambda0 if resume is None else float(resume["lambda"])
         history = {"cost": [cost], "lambda": [lam], "accepted": [True], "time_s": [0.0]}
         best = (np.inf, theta.copy(), 0)
         if validation is not None and len(validation):
@@ -148,6 +153,10 @@ class LevenbergMarquardt:
                 converged, message = True, "damping saturated: no further decrease possible"
                 break
             if accepted:
+                if checkpoint is not None:
+                    checkpoint(
+                        theta, {"solver": "levenberg-marquardt", "iteration": it, "lambda": lam}
+                    )
                 _, atr, ata = problem.normal_equations(theta, train)
         if "validation" in history:
             theta, best_it = best[1], best[2]
@@ -192,7 +201,13 @@ class Adam:
         train: np.ndarray | None = None,
         validation: np.ndarray | None = None,
         callback: Callable[[int, dict], None] | None = None,
+        checkpoint: Callable[[np.ndarray, dict], None] | None = None,
+        checkpoint_every: int = 25,
+        resume: dict | None = None,
     ) -> SolveResult:
+        """Run Adam. ``checkpoint(theta, state)`` is called every ``checkpoint_every`` steps
+        with everything needed to continue; passing that state back as ``resume`` continues
+        the run exactly where it stopped."""
         start = time.perf_counter()
         rng = np.random.default_rng(self.seed)
         theta = np.zeros(problem.n_params) if theta0 is None else np.array(theta0, dtype=float)
@@ -210,7 +225,20 @@ class Adam:
         order = rng.permutation(train)
         cursor = 0
         train_cost = np.nan
-        for step in range(1, self.steps + 1):
+        first = 1
+        if resume is not None:
+            first = int(resume["step"]) + 1
+            m, v = np.asarray(resume["m"]), np.asarray(resume["v"])
+            best = (
+                float(resume["best_val"]),
+                np.asarray(resume["best_theta"]),
+                int(resume["best_step"]),
+            )
+            order, cursor = np.asarray(resume["order"]), int(resume["cursor"])
+            rng.bit_generator.state = json.loads(resume["rng"])
+            history = {k: list(v_) for k, v_ in json.loads(resume["history"]).items()}
+            train_cost = float(resume["train_cost"])
+        for step in range(first, self.steps + 1):
             if cursor + self.batch_size > len(order):
                 order, cursor = rng.permutation(train), 0
             batch = order[cursor : cursor + self.batch_size]
@@ -236,6 +264,24 @@ class Adam:
                     best = (val, theta.copy(), step)
                 if callback is not None:
                     callback(step, {"train": train_cost, "validation": val})
+            if checkpoint is not None and (step % checkpoint_every == 0):
+                checkpoint(
+                    theta,
+                    {
+                        "solver": "adam",
+                        "step": step,
+                        "m": m,
+                        "v": v,
+                        "best_val": best[0],
+                        "best_theta": best[1],
+                        "best_step": best[2],
+                        "order": order,
+                        "cursor": cursor,
+                        "rng": json.dumps(rng.bit_generator.state),
+                        "history": json.dumps(history),
+                        "train_cost": train_cost,
+                    },
+                )
         if has_val:
             theta, best_step = best[1], best[2]
         else:
