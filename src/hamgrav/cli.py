@@ -395,6 +395,57 @@ def select(
         output.write_text(json.dumps({"model": str(model_file), "picks": rows}, indent=2) + "\n")
 
 
+experiment_app = typer.Typer(
+    help="Experiments of the paper (write results/<name>/).", no_args_is_help=True
+)
+app.add_typer(experiment_app, name="experiment")
+
+
+@experiment_app.command("solvers")
+def experiment_solvers(
+    output: Annotated[Path, typer.Option("-o", "--output")] = Path("results/solvers-itokawa"),
+    body_name: Annotated[str, typer.Option("--body")] = "itokawa",
+    interior: Annotated[str, typer.Option()] = "head-tail",
+    orbits: Annotated[int, typer.Option()] = 16,
+    arcs_per_orbit: Annotated[int, typer.Option()] = 7,
+    hidden: Annotated[str, typer.Option()] = "24,24",
+    adam_steps: Annotated[int, typer.Option()] = 300,
+    lm_iterations: Annotated[int, typer.Option()] = 20,
+    stages: Annotated[int, typer.Option()] = 4,
+    seed: Annotated[int, typer.Option()] = 0,
+) -> None:
+    """Adam vs LM on the network, unweighted vs weighted; continual warm starts; D-optimal."""
+    from .experiments.solvers import run_solver_comparison, write_solver_report
+
+    command = (
+        " ".join(["hamgrav", *sys.argv[1:]])
+        if sys.argv[0].endswith("hamgrav")
+        else (
+            f"hamgrav experiment solvers --body {body_name} --interior {interior} --orbits "
+            f"{orbits} --arcs-per-orbit {arcs_per_orbit} --hidden {hidden} --adam-steps "
+            f"{adam_steps} --lm-iterations {lm_iterations} --stages {stages} --seed {seed} "
+            f"-o {output}"
+        )
+    )
+    try:
+        results = run_solver_comparison(
+            body=body_name,
+            interior=interior,
+            orbits=orbits,
+            arcs_per_orbit=arcs_per_orbit,
+            hidden=tuple(int(h) for h in _parse_floats(hidden, "--hidden")),
+            adam_steps=adam_steps,
+            lm_iterations=lm_iterations,
+            stages=stages,
+            seed=seed,
+            progress=lambda text: err.print(escape(text)),
+        )
+        write_solver_report(results, output, command)
+    except _USER_ERRORS as exc:
+        _fail(exc)
+    console.print(f"wrote {output}/results.json, README.md, d_optimal.png")
+
+
 @app.command()
 def demo(
     output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the outputs.")] = Path(

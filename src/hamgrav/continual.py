@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .model import Model
-from .sensitivity import ArcProblem
+from .sensitivity import ArcProblem, PropagationError
 from .solvers import SolveResult, split_validation
 from .tracking import Arcs
 
@@ -59,7 +59,15 @@ def fit_continual(
         if validation_fraction > 0:
             train, validation = split_validation(subset.n_arcs, validation_fraction, seed + k)
         init = theta if (warm_start and theta is not None) else start
-        result = solver.solve(problem, init, train=train, validation=validation)
+        warm_failed = False
+        try:
+            result = solver.solve(problem, init, train=train, validation=validation)
+        except PropagationError:
+            if init is start:
+                raise
+            # the previous stage's model does not carry the new arcs: restart this stage
+            warm_failed = True
+            result = solver.solve(problem, start, train=train, validation=validation)
         theta = result.params
         record = StageRecord(
             k,
@@ -68,7 +76,7 @@ def fit_continual(
             result.best_iteration,
             result.cost,
             result.wall_s,
-            warm_start and k > 0,
+            warm_start and k > 0 and not warm_failed,
             result,
         )
         records.append(record)
