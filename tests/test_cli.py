@@ -147,3 +147,46 @@ def test_fit_rejects_bad_options(arcs_file, tmp_path):
     result = runner.invoke(app, ["fit", str(arcs_file), "--resume", "-o", str(out)])
     assert result.exit_code == 2 and "no checkpoint" in result.output
     assert not out.exists()
+
+
+def test_experiment_solvers_tiny(tmp_path):
+    out = tmp_path / "solvers"
+    result = runner.invoke(
+        app,
+        [
+            "experiment",
+            "solvers",
+            "--body",
+            "synthetic",
+            "--orbits",
+            "4",
+            "--arcs-per-orbit",
+            "3",
+            "--hidden",
+            "6",
+            "--adam-steps",
+            "4",
+            "--lm-iterations",
+            "2",
+            "--stages",
+            "2",
+            "-o",
+            str(out),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert set(data["fits"]) == {
+        "sh4-lm",
+        "sh8-lm",
+        "network-adam-unweighted",
+        "network-lm-unweighted",
+        "network-adam-weighted",
+        "network-lm-weighted",
+    }
+    assert data["command"].startswith("hamgrav experiment solvers")
+    readme = (out / "README.md").read_text()
+    assert "| network-lm-weighted | lm | weighted |" in readme
+    assert (out / "d_optimal.png").stat().st_size > 1000
+    d = data["d_optimal"]
+    assert d["greedy_logdet"][0] >= max(r[0] for r in d["random_logdet"])

@@ -446,6 +446,64 @@ def experiment_solvers(
     console.print(f"wrote {output}/results.json, README.md, d_optimal.png")
 
 
+@experiment_app.command("descent")
+def experiment_descent(
+    body_name: Annotated[str, typer.Option("--body")] = "itokawa",
+    interior: Annotated[
+        str | None,
+        typer.Option(help="uniform|head-tail|void|anomalies (default: head-tail for Itokawa)."),
+    ] = None,
+    seed: Annotated[int, typer.Option()] = 0,
+    orbits: Annotated[int, typer.Option()] = 16,
+    arcs_per_orbit: Annotated[int, typer.Option()] = 7,
+    descents: Annotated[int, typer.Option()] = 30,
+    hidden: Annotated[str, typer.Option()] = "24,24",
+    adam_steps: Annotated[int, typer.Option()] = 300,
+    lm_iterations: Annotated[int, typer.Option()] = 20,
+    output: Annotated[Path, typer.Option("-o", "--output")] = Path("results/descent-itokawa"),
+) -> None:
+    """Ballistic descent planning from tracking alone (the paper's touchdown table)."""
+    from .experiments.descent import run_descent_experiment, write_descent_report
+
+    command = (
+        f"hamgrav experiment descent --body {body_name}"
+        + (f" --interior {interior}" if interior else "")
+        + f" --seed {seed} --orbits {orbits} --arcs-per-orbit {arcs_per_orbit}"
+        + f" --descents {descents} --hidden {hidden} --adam-steps {adam_steps}"
+        + f" --lm-iterations {lm_iterations} -o {output}"
+    )
+    try:
+        results, artefacts = run_descent_experiment(
+            body=body_name,
+            interior=interior,
+            seed=seed,
+            orbits=orbits,
+            arcs_per_orbit=arcs_per_orbit,
+            descents=descents,
+            hidden=tuple(int(h) for h in _parse_floats(hidden, "--hidden")),
+            adam_steps=adam_steps,
+            lm_iterations=lm_iterations,
+            progress=lambda text: err.print(escape(text)),
+        )
+        write_descent_report(results, artefacts, output, command)
+    except _USER_ERRORS as exc:
+        _fail(exc)
+    table = Table(title=f"touchdown miss over {descents} descents")
+    for col in ("model", "median [m]", "90th pct [m]", "worst [m]", "landed", "h30m", "r1.2"):
+        table.add_column(col, justify="right")
+    for name, st in results["models"].items():
+        fe = results["field_error"][name]
+        cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "p90_m", "worst_m")]
+        table.add_row(
+            name, *cells, f"{st['landed']}/{st['total']}", f"{fe['h30m']:.3f}", f"{fe['r1.2']:.3f}"
+        )
+    console.print(table)
+    console.print(
+        f"wrote {output}/results.json, README.md, touchdown.png, geometry.png "
+        f"({results['wall_s']} s)"
+    )
+
+
 @app.command()
 def demo(
     output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the outputs.")] = Path(

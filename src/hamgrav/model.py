@@ -29,6 +29,7 @@ __all__ = [
     "Model",
     "DEFAULT_FIT_TOLERANCE",
     "compiled_integrator",
+    "compiled_scalar_integrator",
     "field_functions",
     "evaluate_field",
 ]
@@ -142,6 +143,19 @@ def compiled_integrator(
         return hy.taylor_adaptive_batch(sys, state, **kwargs)
 
     return _cached((model.key(), "var" if variational else "plain", tol, batch), build)
+
+
+def compiled_scalar_integrator(model: Model, tol: float = DEFAULT_FIT_TOLERANCE):
+    """The (cached) scalar Taylor integrator of ``model`` (no sensitivities), for long single
+    propagations such as descents; set ``ta.pars`` before use."""
+
+    def build():
+        kwargs = {"tol": tol, "compact_mode": True}
+        if model.n_system_params:
+            kwargs["pars"] = np.zeros(model.n_system_params)
+        return hy.taylor_adaptive(model.system(), [1.0, 0, 0, 0, 1.0, 0], **kwargs)
+
+    return _cached((model.key(), "scalar", tol), build)
 
 
 def field_functions(model: Model, which: str = "learnable"):

@@ -16,9 +16,10 @@ from .tracking import Arcs  # noqa: E402
 __all__ = ["plot_campaign"]
 
 
-def plot_campaign(truth: Truth, arcs: Arcs, path: str | Path) -> Path:
+def plot_campaign(truth: Truth, arcs: Arcs, path: str | Path, save: bool = True):
     """The shape, the Brillouin sphere and the tracked arcs in the body frame: a 3-D view and
-    the equatorial (x-y) projection, lengths in metres."""
+    the equatorial (x-y) projection, lengths in metres. With ``save=False`` the figure is
+    returned open, for more layers."""
     body = truth.body
     length = body.units.length_m
     verts = np.asarray(body.mesh.vertices) * length
@@ -59,6 +60,8 @@ def plot_campaign(truth: Truth, arcs: Arcs, path: str | Path) -> Path:
         f"(body frame), truth interior '{truth.interior}'"
     )
     fig.tight_layout()
+    if not save:
+        return fig
     path = Path(path)
     fig.savefig(path, dpi=120)
     plt.close(fig)
