@@ -190,3 +190,42 @@ def test_experiment_solvers_tiny(tmp_path):
     assert (out / "d_optimal.png").stat().st_size > 1000
     d = data["d_optimal"]
     assert d["greedy_logdet"][0] >= max(r[0] for r in d["random_logdet"])
+
+
+def test_experiment_descent_tiny(tmp_path):
+    out = tmp_path / "descent"
+    result = runner.invoke(
+        app,
+        [
+            "experiment",
+            "descent",
+            "--body",
+            "synthetic",
+            "--orbits",
+            "2",
+            "--arcs-per-orbit",
+            "2",
+            "--descents",
+            "2",
+            "--hidden",
+            "4",
+            "--adam-steps",
+            "3",
+            "--lm-iterations",
+            "2",
+            "-o",
+            str(out),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    for key in ("experiment", "body", "seed", "command", "models", "field_error", "wall_s"):
+        assert key in data
+    assert {"point-mass", "sh4", "sh8", "sh12", "network"} <= set(data["models"])
+    for stats in data["models"].values():
+        assert {"median_m", "p90_m", "worst_m", "landed", "total"} <= set(stats)
+        assert stats["total"] == data["truth_landed"] == 2
+    assert set(data["field_error"]["network"]) == {"h30m", "r1.05", "r1.1", "r1.2", "r1.5"}
+    assert data["field_error"]["point-mass"]["r1.2"] == 1.0
+    assert (out / "touchdown.png").exists() and (out / "geometry.png").exists()
+    assert "| point-mass |" in (out / "README.md").read_text()

@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -509,75 +508,56 @@ def demo(
     output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the outputs.")] = Path(
         "demo-output"
     ),
-    seed: Annotated[int, typer.Option(help="Campaign seed.")] = 1,
+    seed: Annotated[int, typer.Option(help="Campaign seed.")] = 0,
 ) -> None:
-    """Run the pipeline on the synthetic contact binary (no data folder needed).
+    """The descent-planning pipeline on the synthetic contact binary (no data folder needed).
 
-    Builds a head/tail truth, simulates a small tracking campaign, and writes the arcs (HDF5 and
-    CCSDS OEM, one file per orbit), the body report (JSON) and a figure of the campaign to OUTPUT.
+    Head twice as dense as the body; 8 orbits x 7 arcs; a 353-parameter network (Adam, and
+    Levenberg-Marquardt) against SH degree 4 and 8; 12 descents from 1.3 R_B. Writes the
+    results, a README, the figures and the arcs (HDF5 and CCSDS OEM) to OUTPUT.
     """
-    import time
-
-    from .bodies import load_body
-    from .campaign import Campaign
-    from .fields import perturbing_potential, shell_points
-    from .interiors import build_truth
+    from .experiments.descent import run_descent_experiment, write_descent_report
     from .oem_export import export_oem_by_trajectory
-    from .plots import plot_campaign
-    from .report import body_report
-    from .tracking import TrackingConfig, orbit_grid, simulate_orbits
 
-    output.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    body_obj = load_body("synthetic")
-    report = body_report(body_obj)
-    (output / "body.json").write_text(json.dumps(report, indent=2) + "\n")
-    campaign = Campaign(
+    command = f"hamgrav demo --seed {seed} -o {output}"
+    results, artefacts = run_descent_experiment(
         body="synthetic",
         interior="head-tail",
-        n_mascons=400,
         seed=seed,
-        families=tuple(orbit_grid(8, (1.2, 2.0), (10.0, 80.0))),
-        tracking=TrackingConfig(arcs_per_orbit=4),
+        orbits=8,
+        arcs_per_orbit=7,
+        descents=12,
+        hidden=(16, 16),
+        adam_steps=200,
+        lm_iterations=15,
+        sh_degrees=(4, 8),
+        progress=lambda text: err.print(escape(text)),
     )
-    truth = build_truth(body_obj, "head-tail", n_mascons=campaign.n_mascons, seed=seed)
-    with _progress() as progress:
-        task = progress.add_task("simulating tracking", total=len(campaign.families))
-        arcs = simulate_orbits(
-            truth,
-            list(campaign.families),
-            campaign.tracking,
-            seed=seed,
-            progress=lambda done, total: progress.update(task, completed=done),
-            config=campaign.as_dict(),
-        )
-    save_arcs(arcs, output / "arcs.h5")
+    write_descent_report(results, artefacts, output, command)
+    save_arcs(artefacts["arcs"], output / "arcs.h5")
     (output / "oem").mkdir(exist_ok=True)
-    export_oem_by_trajectory(arcs, output / "oem")
-    figure = plot_campaign(truth, arcs, output / "campaign.png")
+    export_oem_by_trajectory(artefacts["arcs"], output / "oem")
 
-    table = Table(title="synthetic contact binary, head twice as dense as the body")
-    table.add_column("shell r/R_B")
-    table.add_column("rms perturbing / rms central potential", justify="right")
-    for s in (1.05, 1.2, 1.5, 2.0):
-        pts = shell_points(s * truth.body.brillouin_radius, 400)
-        dv = perturbing_potential(truth.mascons, pts)
+    table = Table(title="synthetic contact binary: fitted models (from tracking alone)")
+    for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):
+        table.add_column(col, justify="right")
+    for name, st in results["models"].items():
+        fe = results["field_error"][name]
+        cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "worst_m")]
         table.add_row(
-            f"{s:.2f}", f"{np.sqrt(np.mean(dv**2)) * s * truth.body.brillouin_radius:.4f}"
+            name,
+            *(f"{fe[k]:.3f}" for k in ("r1.05", "r1.2", "r1.5", "h30m")),
+            *cells,
+            f"{st['landed']}/{st['total']}",
         )
     console.print(table)
     console.print(
-        f"{arcs.n_arcs} arcs x {arcs.samples_per_arc} samples "
-        f"(sigma_r = {arcs.sigma_r_m * 100:.1f} cm, sigma_v = {arcs.sigma_v_m_s * 1e6:.2f} um/s); "
-        f"envelope inside R_B: {report['envelope_fraction_inside_brillouin']:.3f}"
+        "field errors: relative error of the perturbing potential (1 = no "
+        "correction); r = shells in R_B, h30m = 30 m above the surface"
     )
     console.print(
-        f"wrote {output}/arcs.h5, oem/*.oem, body.json, {figure.name} "
-        f"in {time.perf_counter() - start:.1f} s"
-    )
-    console.print(
-        "[dim]Estimators (network vs spherical harmonics) and descent planning are not part of "
-        "this version yet.[/]"
+        f"wrote {output}/README.md, results.json, touchdown.png, geometry.png, "
+        f"arcs.h5, oem/ in {results['wall_s']} s"
     )
 
 

@@ -247,8 +247,6 @@ def write_descent_report(results: dict, artefacts: dict, folder, command: str) -
     total = results["descents"]
     for name, st in results["models"].items():
         misses = np.sort(st["misses_m"])
-        if len(misses) == 0:
-            continue
         frac = np.arange(1, len(misses) + 1) / total
         ax.step(
             np.concatenate([[0.0], misses]),
@@ -259,6 +257,7 @@ def write_descent_report(results: dict, artefacts: dict, folder, command: str) -
         )
     ax.axhline(0.5, color="k", ls=":", lw=1)
     ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_xlim(left=0.0)
     ax.set_xlabel("miss distance [m]")
     ax.set_ylabel("fraction of descents")
     ax.set_ylim(0, 1.02)
