@@ -20,6 +20,7 @@ import numpy as np
 
 from .bodies import Body
 from .meshgeom import points_inside
+from .sensitivity import _StepLimit
 
 __all__ = [
     "DescentConfig",
@@ -77,7 +78,12 @@ def release_states(body: Body, config: DescentConfig = DescentConfig(), seed: in
 
 
 def propagate_to_contact(
-    ta, state0, body: Body, config: DescentConfig = DescentConfig(), t0: float = 0.0
+    ta,
+    state0,
+    body: Body,
+    config: DescentConfig = DescentConfig(),
+    t0: float = 0.0,
+    max_steps_per_chunk: int = 20_000,
 ) -> Touchdown:
     """Propagate ``state0`` with the scalar heyoka integrator ``ta`` (its pars already set)
     until contact with ``body``'s mesh."""
@@ -97,8 +103,12 @@ def propagate_to_contact(
             break
         ta.time = prev_t
         ta.state[:] = prev_state
-        res = ta.propagate_grid(times)
+        limit = _StepLimit(max_steps_per_chunk)
+        res = ta.propagate_grid(times, callback=limit)
         states = res[-1]
+        if limit.exceeded:
+            n_ok = len(states)
+            return Touchdown(False, float(times[max(n_ok - 1, 0)]), prev_state[:3], "diverged")
         n_ok = len(states)
         finite = np.all(np.isfinite(states), axis=1)
         r = np.linalg.norm(states[:, :3], axis=1)

@@ -34,6 +34,24 @@ class PropagationError(RuntimeError):
     """An arc could not be propagated under the model (e.g. it diverged)."""
 
 
+class _StepLimit:
+    """Step callback stopping a propagation after ``limit`` steps: a well-posed arc takes a
+    few Taylor steps, so a runaway count means the trial parameters are unphysical (solvers
+    then reject the trial instead of waiting on it)."""
+
+    def __init__(self, limit: int):
+        self.limit = limit
+        self.steps = 0
+        self.exceeded = False
+
+    def __call__(self, ta) -> bool:
+        self.steps += 1
+        if self.steps > self.limit:
+            self.exceeded = True
+            return False
+        return True
+
+
 @dataclass(frozen=True)
 class Prediction:
     """States (n_arcs, m, 6) and, when asked, sensitivities (n_arcs, m, 6, n_params)."""
@@ -54,6 +72,7 @@ class ArcProblem:
             paper's unweighted canonical residuals.
         tol: integrator tolerance.
         threads: worker threads (default: the number of CPUs).
+        max_steps: Taylor steps allowed per batch of arcs before giving up on it.
     """
 
     def __init__(
@@ -66,6 +85,7 @@ class ArcProblem:
         sigmas: np.ndarray | None = None,
         tol: float = DEFAULT_FIT_TOLERANCE,
         threads: int | None = None,
+        max_steps: int = 500,
     ):
         self.model = model
         self.arcs = arcs
@@ -84,6 +104,7 @@ class ArcProblem:
         self.n_params = model.n_learn + (n_traj if estimate_srp else 0)
         self.weights = None if sigmas is None else 1.0 / np.asarray(sigmas, dtype=float)
         self.threads = int(threads or os.cpu_count() or 1)
+        self.max_steps = int(max_steps)
         self.batch_size = None  # set on first use from the compiled integrator
 
     # ---------------------------------------------------------------- parameter mapping
@@ -148,7 +169,13 @@ class ArcProblem:
                 st[:6] = self.arcs.states[pad, 0].T
                 if n_sys:
                     ta.pars[:] = self._runtime_params(theta, pad)
-                res = ta.propagate_grid(np.ascontiguousarray(times.T))
+                limit = _StepLimit(self.max_steps)
+                res = ta.propagate_grid(np.ascontiguousarray(times.T), callback=limit)
+                if limit.exceeded:
+                    raise PropagationError(
+                        f"arcs {sel.tolist()} needed more than {self.max_steps} Taylor steps: "
+                        "the parameters make the dynamics stiff or singular"
+                    )
                 grid_states = res[-1]  # (m, n_state, batch)
                 if not np.all(np.isfinite(grid_states)) or grid_states.shape[0] != n_m:
                     raise PropagationError(f"arcs {sel.tolist()} did not propagate to the end")
