@@ -105,7 +105,9 @@ def test_impacting_family_rejected(synthetic_truth):
     # an orbit skimming at 1.01 R_B around an elongated body cannot avoid the surface for long
     fam = [OrbitFamily(1.01, 0.0)]
     cfg = TrackingConfig(arcs_per_orbit=1, window_spin_periods=2.0, max_redraws=3)
-    with pytest.raises(SimulationError, match="touched the surface or escaped"):
+    with pytest.raises(
+        SimulationError, match="touched the surface, escaped or went below min_radius_rb"
+    ):
         simulate_orbits(synthetic_truth, fam, cfg, seed=0)
 
 

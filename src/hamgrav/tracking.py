@@ -66,6 +66,7 @@ class TrackingConfig:
     sigma_r_m: float = 0.05
     velocity_noise_ratio: float = 0.1  # sigma_v = omega * sigma_r * ratio
     escape_factor: float = 3.0  # escape: r > escape_factor * initial radius
+    min_radius_rb: float = 0.0  # also reject orbits dipping below this radius [R_B] (0: off)
     max_redraws: int = 50
 
     def __post_init__(self) -> None:
@@ -263,13 +264,19 @@ def simulate_orbits(
                 radius, math.radians(family.inclination_deg), raan, arg_lat
             )
             states, ok = dynamics.propagate(state0, grid)
-            if ok and not _touches_or_escapes(truth, states, tracking.escape_factor * radius):
+            low = tracking.min_radius_rb * r_b
+            if (
+                ok
+                and not _touches_or_escapes(truth, states, tracking.escape_factor * radius)
+                and np.linalg.norm(states[:, :3], axis=1).min() >= low
+            ):
                 break
         else:
             raise SimulationError(
                 f"every one of {tracking.max_redraws} draws of the orbit at "
-                f"{family.radius_rb} R_B, {family.inclination_deg} deg touched the surface or "
-                "escaped; raise its radius or shorten window_spin_periods"
+                f"{family.radius_rb} R_B, {family.inclination_deg} deg touched the surface, "
+                "escaped or went below min_radius_rb; raise its radius or shorten "
+                "window_spin_periods"
             )
         all_times.append(sample_times.reshape(tracking.arcs_per_orbit, -1))
         all_true.append(states[where].reshape(tracking.arcs_per_orbit, -1, 6))

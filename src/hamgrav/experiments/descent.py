@@ -53,6 +53,7 @@ def run_descent_experiment(
     lm_iterations: int = 20,
     sh_degrees=(4, 8, 12),
     altitude_m: float = 30.0,
+    min_radius_rb: float = 0.0,
     progress=None,
 ):
     """Run the experiment; returns (results dict, artefacts for figures)."""
@@ -64,9 +65,8 @@ def run_descent_experiment(
     t = time.perf_counter()
     truth = build_truth(load_body(body), interior, seed=seed)
     families = orbit_grid(orbits, (1.2, 2.0), (10.0, 80.0))
-    arcs = simulate_orbits(
-        truth, families, TrackingConfig(arcs_per_orbit=arcs_per_orbit), seed=seed
-    )
+    tracking = TrackingConfig(arcs_per_orbit=arcs_per_orbit, min_radius_rb=min_radius_rb)
+    arcs = simulate_orbits(truth, families, tracking, seed=seed)
     wall["truth_simulation_s"] = time.perf_counter() - t
     say(f"truth and {arcs.n_arcs} arcs in {wall['truth_simulation_s']:.1f} s")
     r_b = truth.body.brillouin_radius
@@ -148,6 +148,7 @@ def run_descent_experiment(
         "adam_steps": adam_steps,
         "adam_learning_rate": learning_rate,
         "lm_iterations": lm_iterations,
+        "min_radius_rb": min_radius_rb,
         "descents": descents,
         "truth_landed": int(sum(td.landed for td in truth_td)),
         "descent_duration_h_median": float(np.median(descent_hours)) if descent_hours else None,
