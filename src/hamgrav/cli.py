@@ -512,8 +512,10 @@ def demo(
 ) -> None:
     """The descent-planning pipeline on the synthetic contact binary (no data folder needed).
 
-    Head twice as dense as the body; 8 orbits x 7 arcs; a 353-parameter network (Adam, and
-    Levenberg-Marquardt) against SH degree 4 and 8; 12 descents from 1.3 R_B. Writes the
+    Head twice as dense as the body; 12 orbits x 7 arcs (orbits dipping below the Brillouin
+    sphere are redrawn: around this strongly perturbed body they dominate the cost); a
+    353-parameter network (Adam, and Levenberg-Marquardt) against SH degree 4 and 8; 12
+    descents from 1.3 R_B. Writes the
     results, a README, the figures and the arcs (HDF5 and CCSDS OEM) to OUTPUT.
     """
     from .experiments.descent import run_descent_experiment, write_descent_report
@@ -524,13 +526,14 @@ def demo(
         body="synthetic",
         interior="head-tail",
         seed=seed,
-        orbits=8,
+        orbits=12,
         arcs_per_orbit=7,
         descents=12,
         hidden=(16, 16),
-        adam_steps=200,
-        lm_iterations=15,
+        adam_steps=600,
+        lm_iterations=25,
         sh_degrees=(4, 8),
+        min_radius_rb=1.0,
         progress=lambda text: err.print(escape(text)),
     )
     write_descent_report(results, artefacts, output, command)
