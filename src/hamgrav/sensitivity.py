@@ -105,7 +105,6 @@ class ArcProblem:
         self.weights = None if sigmas is None else 1.0 / np.asarray(sigmas, dtype=float)
         self.threads = int(threads or os.cpu_count() or 1)
         self.max_steps = int(max_steps)
-        self.batch_size = None  # set on first use from the compiled integrator
 
     # ---------------------------------------------------------------- parameter mapping
     def _runtime_params(self, theta: np.ndarray, arc_idx: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import heyoka as hy
 import numpy as np
 
-from .hamiltonian import POSITION
+from .hamiltonian import POSITION, mascon_potential_expression
 from .interiors import MasconSet
 
 __all__ = [
@@ -92,11 +92,7 @@ class MasconTerm(Term):
     label: str = "mascons"
 
     def potential(self, offset: int = 0) -> hy.expression:
-        terms = [
-            float(m) / hy.sqrt((x - float(a)) ** 2 + (y - float(b)) ** 2 + (z - float(c)) ** 2)
-            for (a, b, c), m in zip(self.mascons.positions, self.mascons.masses, strict=True)
-        ]
-        return hy.sum(terms)
+        return mascon_potential_expression(self.mascons)
 
     def key(self) -> str:
         return f"mascons({_hash_arrays(self.mascons.positions, self.mascons.masses)})"
