@@ -170,22 +170,12 @@ def run_descent_experiment(
 
 def write_descent_report(results: dict, artefacts: dict, folder, command: str) -> None:
     """results.json, README.md (tables next to the paper's) and the figures into ``folder``."""
-    import json
-    from pathlib import Path
-
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..io import atomic_path
     from ..plots import plot_campaign
+    from ._report import save_figure, start_report, write_text
 
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    results = {**results, "command": command}
-    with atomic_path(folder / "results.json") as tmp:
-        tmp.write_text(json.dumps(results, indent=2) + "\n")
+    results, folder = start_report(results, folder, command)
 
     def fmt(v):
         return "-" if v is None else f"{v:.1f}"
@@ -243,8 +233,7 @@ def write_descent_report(results: dict, artefacts: dict, folder, command: str) -
         "`geometry.png` (training arcs and descents around the shape).",
         "",
     ]
-    with atomic_path(folder / "README.md") as tmp:
-        tmp.write_text("\n".join(lines))
+    write_text(folder / "README.md", lines)
 
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     total = results["descents"]
@@ -267,26 +256,24 @@ def write_descent_report(results: dict, artefacts: dict, folder, command: str) -
     ax.legend(fontsize=8)
     ax.set_title(f"{results['body']}: touchdown miss, {results['n_arcs']} arcs")
     fig.tight_layout()
-    with atomic_path(folder / "touchdown.png", suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, folder / "touchdown.png")
 
     truth = artefacts["truth"]
-    with atomic_path(folder / "geometry.png", suffix=".png") as tmp:
-        fig = plot_campaign(truth, artefacts["arcs"], tmp, save=False)
-        ta = TruthDynamics.for_mascons(truth.mascons)._integrator
-        length = truth.body.units.length_m
-        for ax_ in fig.axes[:2]:
-            for state0, td in zip(artefacts["release"], artefacts["truth_touchdowns"], strict=True):
-                ta.time = 0.0
-                ta.state[:] = state0
-                path = ta.propagate_grid(np.linspace(0.0, td.time, 80))[-1][:, :3] * length
-                if ax_.name == "3d":
-                    ax_.plot(path[:, 0], path[:, 1], path[:, 2], color="C3", lw=0.8)
-                else:
-                    ax_.plot(path[:, 0], path[:, 1], color="C3", lw=0.8)
-        fig.savefig(tmp, format="png", dpi=120)
-        plt.close(fig)
+    fig = plot_campaign(truth, artefacts["arcs"], None, save=False)
+    ta = TruthDynamics.for_mascons(truth.mascons)._integrator
+    length = truth.body.units.length_m
+    paths = []
+    for state0, td in zip(artefacts["release"], artefacts["truth_touchdowns"], strict=True):
+        ta.time = 0.0
+        ta.state[:] = state0
+        paths.append(ta.propagate_grid(np.linspace(0.0, td.time, 80))[-1][:, :3] * length)
+    for ax_ in fig.axes[:2]:
+        for path in paths:
+            if ax_.name == "3d":
+                ax_.plot(path[:, 0], path[:, 1], path[:, 2], color="C3", lw=0.8)
+            else:
+                ax_.plot(path[:, 0], path[:, 1], color="C3", lw=0.8)
+    save_figure(fig, folder / "geometry.png")
 
 
 def _comparison_lines(results: dict) -> list[str]:

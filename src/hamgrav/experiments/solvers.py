@@ -186,21 +186,11 @@ def run_solver_comparison(
 
 def write_solver_report(results: dict, folder, command: str) -> None:
     """results.json, README.md (tables) and figure.png into ``folder`` (atomically each)."""
-    import json
-    from pathlib import Path
-
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..io import atomic_path
+    from ._report import save_figure, start_report, write_text
 
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    results = {**results, "command": command}
-    with atomic_path(folder / "results.json") as tmp:
-        tmp.write_text(json.dumps(results, indent=2) + "\n")
+    results, folder = start_report(results, folder, command)
 
     sets = list(next(iter(results["fits"].values()))["field_error"])
     lines = [
@@ -264,8 +254,7 @@ def write_solver_report(results: dict, folder, command: str) -> None:
         ),
         "",
     ]
-    with atomic_path(folder / "README.md") as tmp:
-        tmp.write_text("\n".join(lines))
+    write_text(folder / "README.md", lines)
 
     fig, ax = plt.subplots(figsize=(6, 4))
     picks = np.arange(1, len(d["greedy_logdet"]) + 1)
@@ -277,6 +266,4 @@ def write_solver_report(results: dict, folder, command: str) -> None:
     ax.set_ylabel("log det of accumulated information")
     ax.legend()
     fig.tight_layout()
-    with atomic_path(folder / "d_optimal.png", suffix=".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, folder / "d_optimal.png")
