@@ -82,7 +82,7 @@ class GravityEstimator:
         kaula_metric=None,
         validation_fraction=0.12,
         lm_max_iter=50,
-        adam_steps=300,
+        adam_steps=1500,
         learning_rate=1e-2,
         batch_size=24,
         seed=0,

@@ -48,7 +48,7 @@ def run_descent_experiment(
     arcs_per_orbit: int = 7,
     descents: int = 30,
     hidden=(24, 24),
-    adam_steps: int = 300,
+    adam_steps: int = 1500,
     learning_rate: float = 1e-2,
     lm_iterations: int = 20,
     sh_degrees=(4, 8, 12),

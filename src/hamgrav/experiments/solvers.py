@@ -43,7 +43,7 @@ def run_solver_comparison(
     orbits: int = 16,
     arcs_per_orbit: int = 7,
     hidden=(24, 24),
-    adam_steps: int = 300,
+    adam_steps: int = 1500,
     lm_iterations: int = 20,
     learning_rate: float = 1e-2,
     stages: int = 4,
