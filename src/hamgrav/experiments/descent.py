@@ -177,63 +177,7 @@ def write_descent_report(results: dict, artefacts: dict, folder, command: str) -
 
     results, folder = start_report(results, folder, command)
 
-    def fmt(v):
-        return "-" if v is None else f"{v:.1f}"
-
-    lines = [
-        f"# Ballistic descent planning from tracking alone: {results['body']} "
-        f"({results['interior']}), seed {results['seed']}",
-        "",
-        "Regenerate with:",
-        "",
-        f"    {command}",
-        "",
-        f"{results['n_arcs']} orbital arcs ({results['orbits']} orbits x "
-        f"{results['arcs_per_orbit']} arcs of 40 samples at 14 s, sigma_r = 5 cm); "
-        f"{results['descents']} descents released at 1.3 R_B with 1-3 cm/s inward manoeuvres "
-        f"(truth: {results['truth_landed']} landed, median duration "
-        f"{fmt(results['descent_duration_h_median'])} h). Whole run: {results['wall_s']} s.",
-        "",
-        "Miss distance between the contact point predicted by each model and the true one,",
-        "over the descents that land under the model (paper's numbers in brackets):",
-        "",
-        "| planning model | median [m] | 90th pct [m] | worst [m] | landed |",
-        "|---|---|---|---|---|",
-    ]
-    for name, st in results["models"].items():
-        paper = PAPER_TABLE.get(name)
-        cells = [
-            fmt(st["median_m"]),
-            fmt(st["p90_m"]),
-            fmt(st["worst_m"]),
-            f"{st['landed']}/{st['total']}",
-        ]
-        if paper:
-            cells = [f"{c} ({p})" for c, p in zip(cells, paper, strict=True)]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    lines += [
-        "",
-        "`network` is the paper's protocol (721-parameter network, Adam, unweighted cost);",
-        "`network-lm` is the same network fitted by Levenberg-Marquardt on the same arcs with",
-        "the same validation hold-out (the best configuration of `results/solvers-itokawa`).",
-        "",
-        "Relative field error (1 = no correction) on the 30 m surface-following set and on shells:",
-        "",
-    ]
-    sets = list(next(iter(results["field_error"].values())))
-    lines += ["| model | " + " | ".join(sets) + " |", "|---|" + "---|" * len(sets)]
-    for name, errs in results["field_error"].items():
-        lines.append(f"| {name} | " + " | ".join(f"{errs[k]:.3f}" for k in sets) + " |")
-    lines += ["", "## Against the paper", ""] + _comparison_lines(results)
-    lines += ["", "Wall time per stage [s]:", ""]
-    lines += [f"- {k}: {v}" for k, v in results["wall_stages_s"].items()]
-    lines += [
-        "",
-        "Figures: `touchdown.png` (fraction of descents within a miss distance), "
-        "`geometry.png` (training arcs and descents around the shape).",
-        "",
-    ]
-    write_text(folder / "README.md", lines)
+    write_text(folder / "README.md", readme_lines(results))
 
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     total = results["descents"]
@@ -274,6 +218,69 @@ def write_descent_report(results: dict, artefacts: dict, folder, command: str) -
             else:
                 ax_.plot(path[:, 0], path[:, 1], color="C3", lw=0.8)
     save_figure(fig, folder / "geometry.png")
+
+
+def readme_lines(results: dict) -> list[str]:
+    """The README of a descent run, from its results (tables next to the paper's)."""
+    command = results["command"]
+
+    def fmt(v):
+        return "-" if v is None else f"{v:.1f}"
+
+    lines = [
+        f"# Ballistic descent planning from tracking alone: {results['body']} "
+        f"({results['interior']}), seed {results['seed']}",
+        "",
+        "Regenerate with:",
+        "",
+        f"    {command}",
+        "",
+        f"{results['n_arcs']} orbital arcs ({results['orbits']} orbits x "
+        f"{results['arcs_per_orbit']} arcs of 40 samples at 14 s, sigma_r = 5 cm); "
+        f"{results['descents']} descents released at 1.3 R_B with 1-3 cm/s inward manoeuvres "
+        f"(truth: {results['truth_landed']} landed, median duration "
+        f"{fmt(results['descent_duration_h_median'])} h). Whole run: {results['wall_s']} s.",
+        "",
+        "Miss distance between the contact point predicted by each model and the true one,",
+        "over the descents that land under the model (paper's numbers in brackets):",
+        "",
+        "| planning model | median [m] | 90th pct [m] | worst [m] | landed |",
+        "|---|---|---|---|---|",
+    ]
+    for name, st in results["models"].items():
+        paper = PAPER_TABLE.get(name)
+        cells = [
+            fmt(st["median_m"]),
+            fmt(st["p90_m"]),
+            fmt(st["worst_m"]),
+            f"{st['landed']}/{st['total']}",
+        ]
+        if paper:
+            cells = [f"{c} ({p})" for c, p in zip(cells, paper, strict=True)]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "`network` is the paper's protocol (721-parameter network, Adam, unweighted cost);",
+        "`network-lm` is the same network fitted by Levenberg-Marquardt on the same arcs with",
+        "the same validation hold-out (our alternative; see `results/solvers-itokawa`).",
+        "",
+        "Relative field error (1 = no correction) on the 30 m surface-following set and on shells:",
+        "",
+    ]
+    sets = list(next(iter(results["field_error"].values())))
+    lines += ["| model | " + " | ".join(sets) + " |", "|---|" + "---|" * len(sets)]
+    for name, errs in results["field_error"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{errs[k]:.3f}" for k in sets) + " |")
+    lines += ["", "## Against the paper", ""] + _comparison_lines(results)
+    lines += ["", "Wall time per stage [s]:", ""]
+    lines += [f"- {k}: {v}" for k, v in results["wall_stages_s"].items()]
+    lines += [
+        "",
+        "Figures: `touchdown.png` (fraction of descents within a miss distance), "
+        "`geometry.png` (training arcs and descents around the shape).",
+        "",
+    ]
+    return lines
 
 
 def _comparison_lines(results: dict) -> list[str]:
