@@ -16,7 +16,7 @@ from hamgrav.units import velocity_to_momentum
 def test_descent_aimed_at_a_facet_lands_on_it(synthetic_truth):
     body = synthetic_truth.body
     mesh = body.mesh
-    ta = TruthDynamics.for_mascons(synthetic_truth.mascons)._integrator
+    ta = TruthDynamics.for_mascons(synthetic_truth.mascons).integrator
     units = body.units
     rng = np.random.default_rng(0)
     for facet in rng.choice(len(mesh.faces), size=3, replace=False):
@@ -40,7 +40,7 @@ def test_truth_descents_land(synthetic_truth):
     assert np.all((dvs >= 0.01) & (dvs <= 0.03))
     r = np.linalg.norm(states[:, :3], axis=1)
     assert np.allclose(r, 1.3 * synthetic_truth.body.brillouin_radius)
-    ta = TruthDynamics.for_mascons(synthetic_truth.mascons)._integrator
+    ta = TruthDynamics.for_mascons(synthetic_truth.mascons).integrator
     for s in states:
         td = propagate_to_contact(ta, s, synthetic_truth.body, cfg)
         assert td.landed and td.time > 0

@@ -226,7 +226,7 @@ def fit(
             theta0, resume_state = load_checkpoint(ckpt)
         with _progress() as progress:
             task = progress.add_task(
-                "fitting", total=steps if estimator._solver().__class__.__name__ == "Adam" else None
+                "fitting", total=steps if estimator.solver_name == "adam" else None
             )
 
             def on_iteration(it, record):

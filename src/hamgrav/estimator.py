@@ -124,8 +124,13 @@ class GravityEstimator:
             learnable = SphericalHarmonics(int(self.degree), body.brillouin_radius)
         return Model(known, learnable), prior_info
 
+    @property
+    def solver_name(self) -> str:
+        """The solver in use: as given, else Adam for the network and LM for SH."""
+        return self.solver or ("adam" if self.term == "network" else "lm")
+
     def _solver(self):
-        name = self.solver or ("adam" if self.term == "network" else "lm")
+        name = self.solver_name
         if name == "lm":
             alpha = self.kaula if isinstance(self.kaula, int | float) else 0.0
             return LevenbergMarquardt(max_iter=self.lm_max_iter, kaula_alpha=float(alpha))

@@ -81,7 +81,8 @@ class TruthDynamics:
         potential = mascon_potential_expression(mascons)
         self.hamiltonian = rotating_hamiltonian([potential])
         self.system = equations_of_motion(self.hamiltonian)
-        self._integrator = hy.taylor_adaptive(
+        #: the compiled scalar integrator (shared: set state, time, then propagate)
+        self.integrator = hy.taylor_adaptive(
             self.system, [1.0, 0.0, 0.0, 0.0, 1.0, 0.0], tol=tol, compact_mode=True
         )
         self._energy = hy.cfunc([self.hamiltonian], vars=list(STATE_VARIABLES), compact_mode=True)
@@ -106,7 +107,7 @@ class TruthDynamics:
         integration reached the last time.
         """
         times = np.asarray(times, dtype=float)
-        ta = self._integrator
+        ta = self.integrator
         ta.state[:] = np.asarray(state0, dtype=float)
         ta.time = float(t0)
         out = np.full((len(times), 6), np.nan)
@@ -134,7 +135,7 @@ class TruthDynamics:
         times = np.asarray(times, dtype=float)
         grid = times if times[0] == t0 else np.concatenate([[t0], times])
         skip = 0 if times[0] == t0 else 1
-        ta = self._integrator
+        ta = self.integrator
         ta.time = float(t0)
 
         def gen(tcopy, i):

@@ -106,7 +106,7 @@ def run_descent_experiment(
     t = time.perf_counter()
     config = DescentConfig(count=descents)
     release, dvs = release_states(truth.body, config, seed=seed)
-    truth_ta = TruthDynamics.for_mascons(truth.mascons)._integrator
+    truth_ta = TruthDynamics.for_mascons(truth.mascons).integrator
     truth_td = [propagate_to_contact(truth_ta, s, truth.body, config) for s in release]
     wall["descents_truth_s"] = time.perf_counter() - t
     say(
@@ -204,7 +204,7 @@ def write_descent_report(results: dict, artefacts: dict, folder, command: str) -
 
     truth = artefacts["truth"]
     fig = plot_campaign(truth, artefacts["arcs"], None, save=False)
-    ta = TruthDynamics.for_mascons(truth.mascons)._integrator
+    ta = TruthDynamics.for_mascons(truth.mascons).integrator
     length = truth.body.units.length_m
     paths = []
     for state0, td in zip(artefacts["release"], artefacts["truth_touchdowns"], strict=True):
