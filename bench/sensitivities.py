@@ -19,12 +19,12 @@ import time
 import heyoka as hy
 import numpy as np
 
-from hamgrav.bodies import load_body
-from hamgrav.interiors import build_truth
-from hamgrav.model import DEFAULT_FIT_TOLERANCE, Model, compiled_integrator
-from hamgrav.sensitivity import ArcProblem
-from hamgrav.terms import NeuralPotential, PointMass, SphericalHarmonics
-from hamgrav.tracking import TrackingConfig, orbit_grid, simulate_orbits
+from hamgrav.bodies.catalogue import load_body
+from hamgrav.bodies.interiors import build_truth
+from hamgrav.core.model import DEFAULT_FIT_TOLERANCE, Model, compiled_integrators
+from hamgrav.core.problem import ArcProblem
+from hamgrav.core.terms import NeuralPotential, PointMass, SphericalHarmonics
+from hamgrav.sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
 
 
 def main() -> None:
@@ -52,7 +52,7 @@ def main() -> None:
     for name, term in models.items():
         model = Model((PointMass(),), term)
         t = time.perf_counter()
-        compiled_integrator(model, variational=True, tol=args.tol)
+        compiled_integrators(model, variational=True, tol=args.tol)
         compile_s = time.perf_counter() - t
         problem = ArcProblem(model, arcs, tol=args.tol)
         theta = (

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from hamgrav.bodies import bodies_dir, load_body
-from hamgrav.interiors import build_truth
-from hamgrav.tracking import OrbitFamily, TrackingConfig, simulate_orbits
+from hamgrav.bodies.catalogue import bodies_dir, load_body
+from hamgrav.bodies.interiors import build_truth
+from hamgrav.sim.tracking import OrbitFamily, TrackingConfig, simulate_orbits
 
 
 @pytest.fixture(scope="session")

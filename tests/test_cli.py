@@ -1,10 +1,11 @@
 import json
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from hamgrav.cli import app
-from hamgrav.io import load_arcs
+from hamgrav.io.arcs import load_arcs
 
 runner = CliRunner()
 
@@ -95,7 +96,7 @@ def test_simulate_bad_campaign(tmp_path, text, message):
 
 @pytest.fixture(scope="module")
 def arcs_file(tmp_path_factory, small_arcs):
-    from hamgrav.io import save_arcs
+    from hamgrav.io.arcs import save_arcs
 
     return save_arcs(small_arcs, tmp_path_factory.mktemp("arcs") / "arcs.h5")
 
@@ -126,7 +127,7 @@ def test_fit_evaluate_select(arcs_file, tmp_path):
 
 
 def test_fit_network_writes_model(arcs_file, tmp_path):
-    from hamgrav.modelfile import load_model
+    from hamgrav.io.models import load_model
 
     model = tmp_path / "nn.h5"
     result = runner.invoke(
@@ -149,83 +150,86 @@ def test_fit_rejects_bad_options(arcs_file, tmp_path):
     assert not out.exists()
 
 
-def test_experiment_solvers_tiny(tmp_path):
-    out = tmp_path / "solvers"
+def test_fit_shape_prior(arcs_file, tmp_path):
+    from hamgrav.io.models import load_model
+
+    out = tmp_path / "prior.h5"
     result = runner.invoke(
-        app,
-        [
-            "experiment",
-            "solvers",
-            "--body",
-            "synthetic",
-            "--orbits",
-            "4",
-            "--arcs-per-orbit",
-            "3",
-            "--hidden",
-            "6",
-            "--adam-steps",
-            "4",
-            "--lm-iterations",
-            "2",
-            "--stages",
-            "2",
-            "-o",
-            str(out),
-        ],
+        app, ["fit", str(arcs_file), "--model", "sh:2", "--prior", "shape", "-o", str(out)]
     )
     assert result.exit_code == 0, result.output
-    data = json.loads((out / "results.json").read_text())
-    assert set(data["fits"]) == {
-        "sh4-lm",
-        "sh8-lm",
-        "network-adam-unweighted",
-        "network-lm-unweighted",
-        "network-adam-weighted",
-        "network-lm-weighted",
-    }
-    assert data["command"].startswith("hamgrav experiment solvers")
-    readme = (out / "README.md").read_text()
-    assert "| network-lm-weighted | lm | weighted |" in readme
-    assert (out / "d_optimal.png").stat().st_size > 1000
-    d = data["d_optimal"]
-    assert d["greedy_logdet"][0] >= max(r[0] for r in d["random_logdet"])
+    fitted = load_model(out)
+    (prior,) = fitted.model.known
+    assert prior.describe()["kind"] == "mascons" and prior.label == "shape prior"
+    assert np.linalg.norm(prior.mascons.centre_of_mass) < 1e-12
+    assert fitted.prior["kind"] == "shape" and fitted.prior["n_mascons"] > 0
 
 
-def test_experiment_descent_tiny(tmp_path):
-    out = tmp_path / "descent"
+def test_fit_weighted(arcs_file, tmp_path):
+    from hamgrav.io.models import load_model
+
+    plain, weighted = tmp_path / "plain.h5", tmp_path / "weighted.h5"
+    for out, extra in ((plain, []), (weighted, ["--weighted"])):
+        result = runner.invoke(
+            app, ["fit", str(arcs_file), "--model", "sh:2", *extra, "-o", str(out)]
+        )
+        assert result.exit_code == 0, result.output
+    a, b = load_model(plain).solver, load_model(weighted).solver
+    assert a["weighted"] is False and b["weighted"] is True
+    # residuals divided by sigma ~ 1e-4 canonical: the cost grows by orders of magnitude
+    assert b["initial_cost"] > 1e4 * a["initial_cost"]
+
+
+def test_fit_kaula_scan(arcs_file, tmp_path):
+    from hamgrav.io.models import load_model
+
+    out = tmp_path / "kaula.h5"
     result = runner.invoke(
-        app,
-        [
-            "experiment",
-            "descent",
-            "--body",
-            "synthetic",
-            "--orbits",
-            "2",
-            "--arcs-per-orbit",
-            "2",
-            "--descents",
-            "2",
-            "--hidden",
-            "4",
-            "--adam-steps",
-            "3",
-            "--lm-iterations",
-            "2",
-            "-o",
-            str(out),
-        ],
+        app, ["fit", str(arcs_file), "--model", "sh:3", "--kaula", "scan", "-o", str(out)]
     )
     assert result.exit_code == 0, result.output
-    data = json.loads((out / "results.json").read_text())
-    for key in ("experiment", "body", "seed", "command", "models", "field_error", "wall_s"):
-        assert key in data
-    assert {"point-mass", "sh4", "sh8", "sh12", "network"} <= set(data["models"])
-    for stats in data["models"].values():
-        assert {"median_m", "p90_m", "worst_m", "landed", "total"} <= set(stats)
-        assert stats["total"] == data["truth_landed"] == 2
-    assert set(data["field_error"]["network"]) == {"h30m", "r1.05", "r1.1", "r1.2", "r1.5"}
-    assert data["field_error"]["point-mass"]["r1.2"] == 1.0
-    assert (out / "touchdown.png").exists() and (out / "geometry.png").exists()
-    assert "| point-mass |" in (out / "README.md").read_text()
+    solver = load_model(out).solver
+    alphas = [a for a, _ in solver["kaula_scan"]]
+    assert alphas == [1e-8, 1e-7, 1e-6, 1e-5, 1e-4]
+    assert solver["kaula_alpha"] == min(solver["kaula_scan"], key=lambda s: s[1])[0]
+
+
+def test_fit_resume_after_interrupt(arcs_file, tmp_path, monkeypatch):
+    """An interrupted Adam fit keeps its checkpoint; --resume ends where an uninterrupted run
+    ends, and removes the checkpoint."""
+    from hamgrav.io import models
+    from hamgrav.io.models import load_model
+
+    args = ["fit", str(arcs_file), "--hidden", "4", "--steps", "30"]
+    full = tmp_path / "full.h5"
+    assert runner.invoke(app, [*args, "-o", str(full)]).exit_code == 0
+    out = tmp_path / "resumed.h5"
+    real_save = models.save_checkpoint
+
+    def save_then_interrupt(path, params, state):
+        real_save(path, params, state)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(models, "save_checkpoint", save_then_interrupt)
+    result = runner.invoke(app, [*args, "-o", str(out)])
+    assert result.exit_code == 130 and "--resume" in result.output
+    assert models.checkpoint_path_for(out).exists() and not out.exists()
+    monkeypatch.setattr(models, "save_checkpoint", real_save)
+    result = runner.invoke(app, [*args, "--resume", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert not models.checkpoint_path_for(out).exists()
+    assert np.array_equal(load_model(out).params, load_model(full).params)
+
+
+def test_internal_errors_are_not_user_errors(monkeypatch, arcs_file, tmp_path):
+    """A bug (a plain ValueError) keeps its traceback instead of exiting as a user error."""
+    from hamgrav.fit import estimator
+
+    def broken(*args, **kwargs):
+        raise ValueError("a bug")
+
+    monkeypatch.setattr(estimator.GravityEstimator, "fit", broken)
+    result = runner.invoke(
+        app, ["fit", str(arcs_file), "--model", "sh:2", "-o", str(tmp_path / "m.h5")]
+    )
+    assert result.exit_code == 1 and isinstance(result.exception, ValueError)

@@ -1,7 +1,12 @@
-"""The ``hamgrav`` command: a thin layer over the library."""
+"""The ``hamgrav`` command: a thin layer over the library.
+
+Errors caused by input, data or environment (:class:`hamgrav.errors.HamgravError`) are
+printed in one line and exit with status 2; anything else is a bug and keeps its traceback.
+"""
 
 from __future__ import annotations
 
+import inspect
 import json
 import sys
 from pathlib import Path
@@ -13,11 +18,9 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from .bodies import BodyDataError, list_bodies, load_body
-from .campaign import CampaignError, load_campaign, simulate_campaign
-from .interiors import DEFAULT_TRUTH_MASCONS
-from .io import DatasetError, save_arcs
-from .tracking import SimulationError
+from .bodies.catalogue import list_bodies, load_body
+from .bodies.interiors import DEFAULT_TRUTH_MASCONS
+from .errors import HamgravError, InputError
 
 app = typer.Typer(
     help="Learn small-body gravity fields from tracking arcs.",
@@ -26,8 +29,6 @@ app = typer.Typer(
 )
 console = Console()
 err = Console(stderr=True)
-
-_USER_ERRORS = (BodyDataError, CampaignError, DatasetError, SimulationError, ValueError)
 
 
 def _fail(exc: Exception) -> None:
@@ -46,6 +47,28 @@ def _progress() -> Progress:
     )
 
 
+def _say(text: str) -> None:
+    err.print(escape(text), highlight=False)
+
+
+def _floats(text: str, name: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise InputError(f"{name} must be comma-separated numbers, got {text!r}") from None
+
+
+def _command_line(words: list[str], options: dict) -> str:
+    """The command that reproduces a run: ``words`` then every option that was given."""
+    parts = ["hamgrav", *words]
+    for name, value in options.items():
+        if value is None or value is False:
+            continue
+        flag = "-o" if name == "output" else "--" + name.replace("_", "-")
+        parts += [flag] if value is True else [flag, str(value)]
+    return " ".join(parts)
+
+
 @app.command()
 def bodies() -> None:
     """List the bodies hamgrav can load (synthetic ones need no data folder)."""
@@ -62,11 +85,11 @@ def body(
     ),
 ) -> None:
     """Constants, Brillouin radius, envelope and perturbation figures of one body."""
-    from .report import body_report
+    from .bodies.summary import body_report
 
     try:
         report = body_report(load_body(name), n_mascons=mascons)
-    except _USER_ERRORS as exc:
+    except HamgravError as exc:
         _fail(exc)
     if as_json:
         sys.stdout.write(json.dumps(report) + "\n")
@@ -74,6 +97,7 @@ def body(
     table = Table(title=escape(f"{report['name']}: {report['description']}"))
     table.add_column("quantity")
     table.add_column("value", justify="right")
+    check = report["uniform_truth_vs_polyhedron_r1.05"]
     rows = [
         ("GM [m^3/s^2]", f"{report['gm_m3_s2']:.6g}"),
         ("spin period [s]", f"{report['spin_period_s']:.6g}"),
@@ -81,13 +105,10 @@ def body(
         ("Brillouin radius R_B [m]", f"{report['brillouin_radius_m']:.2f}"),
         ("volume [m^3]", f"{report['volume_m3']:.5g}"),
         ("envelope (0-0.15 R_B) inside R_B", f"{report['envelope_fraction_inside_brillouin']:.3f}"),
-    ]
-    rows += [
-        (f"median |a_pert|/|a_central| at {k} R_B", f"{v:.4f}")
-        for k, v in report["perturbation_ratio"].items()
-    ]
-    check = report["uniform_truth_vs_polyhedron_r1.05"]
-    rows += [
+        *(
+            (f"median |a_pert|/|a_central| at {k} R_B", f"{v:.4f}")
+            for k, v in report["perturbation_ratio"].items()
+        ),
         (
             f"uniform truth ({report['truth_mascons']} mascons) vs polyhedron, 1.05 R_B: total V",
             f"{check['total_potential_rel_error']:.2e}",
@@ -109,22 +130,23 @@ def simulate(
     ] = None,
 ) -> None:
     """Simulate a tracking campaign and write its arcs (HDF5)."""
+    from .io.arcs import save_arcs
+    from .io.oem import export_oem_by_trajectory
+    from .sim.campaign import load_campaign, simulate_campaign
+
     try:
         config = load_campaign(campaign)
+        n = len(config.families)
         with _progress() as progress:
-            task = progress.add_task(
-                f"simulating {len(config.families)} orbits", total=len(config.families)
-            )
+            task = progress.add_task(f"simulating {n} orbits", total=n)
             arcs = simulate_campaign(
                 config, progress=lambda done, total: progress.update(task, completed=done)
             )
         save_arcs(arcs, output)
         if oem is not None:
-            from .oem_export import export_oem_by_trajectory
-
             oem.mkdir(parents=True, exist_ok=True)
             export_oem_by_trajectory(arcs, oem)
-    except _USER_ERRORS as exc:
+    except HamgravError as exc:
         _fail(exc)
     console.print(
         f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples "
@@ -132,19 +154,12 @@ def simulate(
     )
 
 
-def _parse_model_option(model: str) -> tuple[str, int]:
+def _model_option(model: str) -> tuple[str, int]:
     if model == "network":
         return "network", 0
     if model.startswith("sh:") and model[3:].isdigit() and int(model[3:]) >= 2:
         return "sh", int(model[3:])
-    raise ValueError(f"--model must be 'network' or 'sh:L' with L >= 2 (e.g. sh:8), got {model!r}")
-
-
-def _parse_floats(text: str, name: str) -> list[float]:
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
+    raise InputError(f"--model must be 'network' or 'sh:L' with L >= 2 (e.g. sh:8), got {model!r}")
 
 
 @app.command()
@@ -173,10 +188,9 @@ def fit(
     ] = False,
 ) -> None:
     """Fit a gravity correction to tracking arcs and write the model file."""
-    from .estimator import GravityEstimator
-    from .evaluate import evaluation_sets, field_errors
-    from .io import load_arcs
-    from .modelfile import (
+    from .fit.estimator import GravityEstimator, body_for_arcs, truth_shell_metric
+    from .io.arcs import load_arcs
+    from .io.models import (
         checkpoint_path_for,
         load_checkpoint,
         load_model,
@@ -184,26 +198,20 @@ def fit(
         save_model,
     )
 
+    ckpt = checkpoint_path_for(output)
     try:
-        term, degree = _parse_model_option(model)
-        hidden_sizes = tuple(int(h) for h in _parse_floats(hidden, "--hidden"))
+        term, degree = _model_option(model)
+        hidden_sizes = tuple(int(h) for h in _floats(hidden, "--hidden"))
         if prior not in (None, "shape"):
-            raise ValueError(f"--prior must be 'shape', got {prior!r}")
+            raise InputError(f"--prior must be 'shape', got {prior!r}")
         kaula_value: float | str | None = None
         if kaula is not None:
-            kaula_value = "scan" if kaula == "scan" else _parse_floats(kaula, "--kaula")[0]
+            kaula_value = "scan" if kaula == "scan" else _floats(kaula, "--kaula")[0]
             if term != "sh":
-                raise ValueError("--kaula applies to spherical-harmonics models (--model sh:L)")
+                raise InputError("--kaula applies to spherical-harmonics models (--model sh:L)")
         arcs = load_arcs(arcs_file)
         output.parent.mkdir(parents=True, exist_ok=True)
-        ckpt = checkpoint_path_for(output)
-
-        def kaula_metric(params, fit_model):
-            from .estimator import body_for_arcs
-
-            sets = evaluation_sets(body_for_arcs(arcs), (1.05,), ())
-            return field_errors(fit_model, params, arcs.truth, sets)["r1.05"]
-
+        body_obj = body_for_arcs(arcs)
         estimator = GravityEstimator(
             term,
             hidden=hidden_sizes,
@@ -212,22 +220,22 @@ def fit(
             solver=solver,
             weighted=weighted,
             kaula=kaula_value,
-            kaula_metric=kaula_metric,
+            kaula_metric=truth_shell_metric(arcs, body_obj) if kaula_value == "scan" else None,
             adam_steps=steps,
             learning_rate=learning_rate,
             seed=seed,
+            body=body_obj,
         )
         theta0, resume_state = None, None
         if init is not None:
             theta0 = load_model(init, expect_body=arcs.body_name).params
         if resume:
             if not ckpt.exists():
-                raise ValueError(f"no checkpoint {ckpt} to resume from; run without --resume")
+                raise InputError(f"no checkpoint {ckpt} to resume from; run without --resume")
             theta0, resume_state = load_checkpoint(ckpt)
         with _progress() as progress:
-            task = progress.add_task(
-                "fitting", total=steps if estimator.solver_name == "adam" else None
-            )
+            total = steps if estimator.solver_name == "adam" else None
+            task = progress.add_task("fitting", total=total)
 
             def on_iteration(it, record):
                 text = " ".join(f"{k} {v:.3e}" for k, v in record.items() if isinstance(v, float))
@@ -247,16 +255,16 @@ def fit(
     except KeyboardInterrupt:
         err.print(
             f"interrupted; the last checkpoint is kept: resume with the same command "
-            f"and --resume ({checkpoint_path_for(output)})"
+            f"and --resume ({ckpt})"
         )
         raise typer.Exit(code=130) from None
-    except _USER_ERRORS as exc:
+    except HamgravError as exc:
         _fail(exc)
     result = estimator.result_
     console.print(
-        f"wrote {output}: {estimator.model_.learnable.describe()['kind']} with "
-        f"{estimator.model_.n_learn} parameters, {result.iterations} iterations in "
-        f"{result.wall_s:.1f} s ({result.message})"
+        f"wrote {output}: {term} with {estimator.model_.n_learn} parameters, "
+        f"{result.iterations} iterations in {result.wall_s:.1f} s ({result.outcome.value}: "
+        f"{result.message})"
     )
 
 
@@ -272,27 +280,27 @@ def evaluate(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Relative field errors of a fitted model against the truth recorded with the arcs."""
-    from .estimator import body_for_arcs
-    from .evaluate import evaluation_sets, field_errors
-    from .io import load_arcs
-    from .modelfile import load_model
+    from .bodies.evaluation import evaluation_sets, set_label
+    from .core.fields import field_errors
+    from .fit.estimator import body_for_arcs
+    from .io.arcs import load_arcs
+    from .io.models import load_model
 
     try:
         fitted = load_model(model_file)
         source = arcs_file or fitted.solver.get("arcs_file")
         if not source:
-            raise ValueError("the model file records no arcs file; pass --arcs ARCS")
+            raise InputError("the model file records no arcs file; pass --arcs ARCS")
         arcs = load_arcs(source)
         if arcs.body_name != fitted.body_name:
-            raise ValueError(
+            raise InputError(
                 f"arcs are of body {arcs.body_name!r}, the model of {fitted.body_name!r}"
             )
-        body_obj = body_for_arcs(arcs)
         sets = evaluation_sets(
-            body_obj, _parse_floats(shells, "--shells"), _parse_floats(altitude, "--altitude")
+            body_for_arcs(arcs), _floats(shells, "--shells"), _floats(altitude, "--altitude")
         )
         errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
-    except _USER_ERRORS as exc:
+    except HamgravError as exc:
         _fail(exc)
     if as_json:
         sys.stdout.write(json.dumps({"model": str(model_file), "field_error": errors}) + "\n")
@@ -301,8 +309,7 @@ def evaluate(
     table.add_column("evaluation set")
     table.add_column("epsilon", justify="right")
     for name, value in errors.items():
-        label = f"shell {name[1:]} R_B" if name.startswith("r") else f"surface + {name[1:-1]} m"
-        table.add_row(label, f"{value:.4f}")
+        table.add_row(set_label(name), f"{value:.4f}")
     console.print(table)
 
 
@@ -323,59 +330,31 @@ def select(
 ) -> None:
     """D-optimal choice of the next orbits from a candidate pool, from predicted sensitivities
     at the current model (no measurements, no truth)."""
-    from .design import (
-        greedy_d_optimal,
-        predicted_arcs,
-        random_order_logdet,
-        trajectory_informations,
-    )
-    from .estimator import body_in_frame
-    from .modelfile import load_model
+    from .fit.design import select_orbits
+    from .fit.estimator import body_in_frame
+    from .io.models import load_model
+    from .sim.campaign import load_campaign
 
     try:
         fitted = load_model(model_file)
         config = load_campaign(pool)
         if config.body != fitted.body_name:
-            raise ValueError(
+            raise InputError(
                 f"the pool is for body {config.body!r}, the model for {fitted.body_name!r}"
             )
         body_obj = body_in_frame(fitted.body_name, fitted.body_origin_m)
         with _progress() as progress:
             progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
-            candidates = predicted_arcs(
-                fitted.model,
-                fitted.params,
+            rows = select_orbits(
+                fitted,
                 list(config.families),
                 config.tracking,
                 brillouin_radius=body_obj.brillouin_radius,
-                body_name=fitted.body_name,
-                gm_m3_s2=fitted.gm_m3_s2,
-                spin_period_s=fitted.spin_period_s,
+                picks=picks,
                 seed=seed,
             )
-            infos = trajectory_informations(
-                fitted.model, fitted.params[: fitted.model.n_learn], candidates
-            )
-        n_pick = min(picks, len(infos))
-        chosen, logdets, gains = greedy_d_optimal(infos, n_pick)
-        _, random_logdets = random_order_logdet(infos, n_pick, seed=seed)
-    except _USER_ERRORS as exc:
+    except HamgravError as exc:
         _fail(exc)
-    family_of = candidates.trajectory_info["candidate"]
-    rows = []
-    for k, (c, ld, g) in enumerate(zip(chosen, logdets, gains, strict=True)):
-        fam = config.families[int(family_of[c])]
-        rows.append(
-            {
-                "pick": k + 1,
-                "candidate": int(family_of[c]),
-                "radius_rb": fam.radius_rb,
-                "inclination_deg": fam.inclination_deg,
-                "gain": float(g),
-                "logdet": float(ld),
-                "random_order_logdet": float(random_logdets[k]),
-            }
-        )
     table = Table(title="D-optimal picks (log det of the accumulated information)")
     for col in ("pick", "candidate", "r / R_B", "incl. [deg]", "gain", "log det", "random order"):
         table.add_column(col, justify="right")
@@ -394,113 +373,119 @@ def select(
         output.write_text(json.dumps({"model": str(model_file), "picks": rows}, indent=2) + "\n")
 
 
+# ------------------------------------------------------------------------------ experiments
 experiment_app = typer.Typer(
     help="Experiments of the paper (write results/<name>/).", no_args_is_help=True
 )
 app.add_typer(experiment_app, name="experiment")
 
 
-@experiment_app.command("solvers")
-def experiment_solvers(
-    output: Annotated[Path, typer.Option("-o", "--output")] = Path("results/solvers-itokawa"),
-    body_name: Annotated[str, typer.Option("--body")] = "itokawa",
-    interior: Annotated[str, typer.Option()] = "head-tail",
-    orbits: Annotated[int, typer.Option()] = 16,
-    arcs_per_orbit: Annotated[int, typer.Option()] = 7,
-    hidden: Annotated[str, typer.Option()] = "24,24",
-    adam_steps: Annotated[int, typer.Option()] = 1500,
-    lm_iterations: Annotated[int, typer.Option()] = 20,
-    stages: Annotated[int, typer.Option()] = 4,
-    seed: Annotated[int, typer.Option()] = 0,
-) -> None:
-    """Adam vs LM on the network, unweighted vs weighted; continual warm starts; D-optimal."""
-    from .experiments.solvers import run_solver_comparison, write_solver_report
+def _run_and_report(experiment, config, *, seed, repeat, output, workers, scheduler, command):
+    from .experiments.runner import run_experiment
 
-    command = (
-        " ".join(["hamgrav", *sys.argv[1:]])
-        if sys.argv[0].endswith("hamgrav")
-        else (
-            f"hamgrav experiment solvers --body {body_name} --interior {interior} --orbits "
-            f"{orbits} --arcs-per-orbit {arcs_per_orbit} --hidden {hidden} --adam-steps "
-            f"{adam_steps} --lm-iterations {lm_iterations} --stages {stages} --seed {seed} "
-            f"-o {output}"
-        )
+    report, outputs = run_experiment(
+        experiment,
+        config,
+        seed=seed,
+        repeat=repeat,
+        output=output,
+        workers=workers,
+        scheduler=scheduler,
+        command=command,
+        say=_say,
     )
-    try:
-        results = run_solver_comparison(
-            body=body_name,
-            interior=interior,
-            orbits=orbits,
-            arcs_per_orbit=arcs_per_orbit,
-            hidden=tuple(int(h) for h in _parse_floats(hidden, "--hidden")),
-            adam_steps=adam_steps,
-            lm_iterations=lm_iterations,
-            stages=stages,
-            seed=seed,
-            progress=lambda text: err.print(escape(text)),
-        )
-        write_solver_report(results, output, command)
-    except _USER_ERRORS as exc:
-        _fail(exc)
-    console.print(f"wrote {output}/results.json, README.md, d_optimal.png")
+    return report, outputs
 
 
-@experiment_app.command("descent")
-def experiment_descent(
-    body_name: Annotated[str, typer.Option("--body")] = "itokawa",
-    interior: Annotated[
-        str | None,
-        typer.Option(help="uniform|head-tail|void|anomalies (default: head-tail for Itokawa)."),
-    ] = None,
-    seed: Annotated[int, typer.Option()] = 0,
-    orbits: Annotated[int, typer.Option()] = 16,
-    arcs_per_orbit: Annotated[int, typer.Option()] = 7,
-    descents: Annotated[int, typer.Option()] = 30,
-    hidden: Annotated[str, typer.Option()] = "24,24",
-    adam_steps: Annotated[int, typer.Option()] = 1500,
-    lm_iterations: Annotated[int, typer.Option()] = 20,
-    output: Annotated[Path, typer.Option("-o", "--output")] = Path("results/descent-itokawa"),
-) -> None:
-    """Ballistic descent planning from tracking alone (the paper's touchdown table)."""
-    from .experiments.descent import run_descent_experiment, write_descent_report
+def _experiment_command(experiment):
+    """A typer command for ``experiment`` whose options are its config's fields."""
+    config_type = experiment.config_type
+    import dataclasses
 
-    command = (
-        f"hamgrav experiment descent --body {body_name}"
-        + (f" --interior {interior}" if interior else "")
-        + f" --seed {seed} --orbits {orbits} --arcs-per-orbit {arcs_per_orbit}"
-        + f" --descents {descents} --hidden {hidden} --adam-steps {adam_steps}"
-        + f" --lm-iterations {lm_iterations} -o {output}"
-    )
-    try:
-        results, artefacts = run_descent_experiment(
-            body=body_name,
-            interior=interior,
-            seed=seed,
-            orbits=orbits,
-            arcs_per_orbit=arcs_per_orbit,
-            descents=descents,
-            hidden=tuple(int(h) for h in _parse_floats(hidden, "--hidden")),
-            adam_steps=adam_steps,
-            lm_iterations=lm_iterations,
-            progress=lambda text: err.print(escape(text)),
+    types_ = config_type.field_types()
+    defaults = experiment.default_config()
+
+    def command(**kwargs):
+        given = dict(kwargs)
+        runner = {
+            k: kwargs.pop(k) for k in ("config", "seed", "repeat", "output", "workers", "scheduler")
+        }
+        given["output"] = runner["output"] or experiment.default_output
+        for name, default in (("repeat", 1), ("workers", 0)):
+            if given[name] == default:
+                given[name] = None
+        try:
+            base = config_type.from_toml(runner["config"]) if runner["config"] else defaults
+            config = base.updated(kwargs, "command-line options")
+            output = runner["output"] or Path(experiment.default_output)
+            report, _ = _run_and_report(
+                experiment,
+                config,
+                seed=runner["seed"],
+                repeat=runner["repeat"],
+                output=output,
+                workers=runner["workers"],
+                scheduler=runner["scheduler"],
+                command=_command_line(["experiment", experiment.name], given),
+            )
+        except HamgravError as exc:
+            _fail(exc)
+        console.print(f"wrote {output}/results.json, README.md and figures ({report['wall_s']} s)")
+
+    params = []
+    for f in dataclasses.fields(config_type):
+        kind = types_[f.name]
+        default = getattr(defaults, f.name)
+        shown = ",".join(map(str, default)) if isinstance(default, tuple) else default
+        params.append(
+            inspect.Parameter(
+                f.name,
+                inspect.Parameter.KEYWORD_ONLY,
+                default=None,
+                annotation=Annotated[
+                    str | None if isinstance(default, tuple) else kind | None,
+                    typer.Option(help=escape(f"{f.metadata.get('help', '')} [default: {shown}]")),
+                ],
+            )
         )
-        write_descent_report(results, artefacts, output, command)
-    except _USER_ERRORS as exc:
-        _fail(exc)
-    table = Table(title=f"touchdown miss over {descents} descents")
-    for col in ("model", "median [m]", "90th pct [m]", "worst [m]", "landed", "h30m", "r1.2"):
-        table.add_column(col, justify="right")
-    for name, st in results["models"].items():
-        fe = results["field_error"][name]
-        cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "p90_m", "worst_m")]
-        table.add_row(
-            name, *cells, f"{st['landed']}/{st['total']}", f"{fe['h30m']:.3f}", f"{fe['r1.2']:.3f}"
+    runner_params = [
+        ("config", Path | None, None, "Config file (TOML); options given here override it."),
+        ("seed", int, 0, "First seed; repetitions use seed, seed+1, ..."),
+        ("repeat", int, 1, "Repetitions (seeds redraw truth mascons, orbits, noise, descents)."),
+        ("output", Path | None, None, f"Output folder [default: {experiment.default_output}]."),
+        ("workers", int, 0, "Run on a Dask LocalCluster of N worker processes (0: in-process)."),
+        ("scheduler", str | None, None, "Address of an existing Dask scheduler."),
+    ]
+    for name, kind, default, text in runner_params:
+        text = escape(text)
+        opt = (
+            typer.Option("-o", "--output", help=text)
+            if name == "output"
+            else typer.Option(help=text)
         )
-    console.print(table)
-    console.print(
-        f"wrote {output}/results.json, README.md, touchdown.png, geometry.png "
-        f"({results['wall_s']} s)"
-    )
+        params.append(
+            inspect.Parameter(
+                name,
+                inspect.Parameter.KEYWORD_ONLY,
+                default=default,
+                annotation=Annotated[kind, opt],
+            )
+        )
+    command.__signature__ = inspect.Signature(params)
+    command.__annotations__ = {p.name: p.annotation for p in params}
+    command.__doc__ = experiment.title
+    return command
+
+
+def _register_experiments() -> None:
+    from .experiments.runner import experiment_names, get_experiment
+
+    for name in experiment_names():
+        experiment = get_experiment(name)
+        experiment_app.command(name)(_experiment_command(experiment))
+
+
+_register_experiments()
 
 
 @app.command()
@@ -512,40 +497,39 @@ def demo(
 ) -> None:
     """The descent-planning pipeline on the synthetic contact binary (no data folder needed).
 
-    Head twice as dense as the body; 12 orbits x 7 arcs (orbits dipping below the Brillouin
-    sphere are redrawn: around this strongly perturbed body they dominate the cost); a
-    353-parameter network (Adam, and Levenberg-Marquardt) against SH degree 4 and 8; 12
-    descents from 1.3 R_B. Writes the
-    results, a README, the figures and the arcs (HDF5 and CCSDS OEM) to OUTPUT.
+    Head twice as dense as the body; 12 orbits x 7 arcs kept above the Brillouin sphere; a
+    353-parameter network (Adam, and Levenberg-Marquardt) against SH 4 and 8; 12 descents
+    from 1.3 R_B. Writes the results, a README, the figures and the arcs (HDF5 and CCSDS
+    OEM) to OUTPUT.
     """
-    from .experiments.descent import run_descent_experiment, write_descent_report
-    from .oem_export import export_oem_by_trajectory
+    from .experiments.descent import DescentExperimentConfig
+    from .experiments.runner import get_experiment
+    from .io.arcs import save_arcs
+    from .io.oem import export_oem_by_trajectory
 
-    command = f"hamgrav demo --seed {seed} -o {output}"
-    results, artefacts = run_descent_experiment(
-        body="synthetic",
-        interior="head-tail",
-        seed=seed,
-        orbits=12,
-        arcs_per_orbit=7,
-        descents=12,
-        hidden=(16, 16),
-        adam_steps=1500,
-        lm_iterations=25,
-        sh_degrees=(4, 8),
-        min_radius_rb=1.0,
-        progress=lambda text: err.print(escape(text)),
-    )
-    write_descent_report(results, artefacts, output, command)
-    save_arcs(artefacts["arcs"], output / "arcs.h5")
-    (output / "oem").mkdir(exist_ok=True)
-    export_oem_by_trajectory(artefacts["arcs"], output / "oem")
-
+    try:
+        report, outputs = _run_and_report(
+            get_experiment("descent"),
+            DescentExperimentConfig.demo(),
+            seed=seed,
+            repeat=1,
+            output=output,
+            workers=0,
+            scheduler=None,
+            command=_command_line(["demo"], {"seed": seed, "output": output}),
+        )
+        arcs = outputs[0].artefacts["arcs"]
+        save_arcs(arcs, output / "arcs.h5")
+        (output / "oem").mkdir(exist_ok=True)
+        export_oem_by_trajectory(arcs, output / "oem")
+    except HamgravError as exc:
+        _fail(exc)
+    result = report["repetitions"][0]
     table = Table(title="synthetic contact binary: fitted models (from tracking alone)")
     for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):
         table.add_column(col, justify="right")
-    for name, st in results["models"].items():
-        fe = results["field_error"][name]
+    for name, st in result["models"].items():
+        fe = result["field_error"][name]
         cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "worst_m")]
         table.add_row(
             name,
@@ -555,12 +539,13 @@ def demo(
         )
     console.print(table)
     console.print(
-        "field errors: relative error of the perturbing potential (1 = no "
-        "correction); r = shells in R_B, h30m = 30 m above the surface"
+        "field errors: relative error of the perturbing potential (1 = no correction); "
+        "r = shells in R_B, h30m = 30 m above the surface; misses: distance between the "
+        "touchdown point each model predicts and the true one"
     )
     console.print(
-        f"wrote {output}/README.md, results.json, touchdown.png, geometry.png, "
-        f"arcs.h5, oem/ in {results['wall_s']} s"
+        f"wrote {output}/README.md, results.json, touchdown.png, geometry.png, arcs.h5, oem/ "
+        f"in {report['wall_s']:.0f} s"
     )
 
 

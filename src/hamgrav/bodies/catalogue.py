@@ -1,0 +1,302 @@
+"""Small bodies: shape, gravitational parameter, spin; the catalogue and the synthetic bodies.
+
+A :class:`Body` holds its closed surface mesh in metres in the body-fixed frame (z along the
+spin axis). Everything derived from it that the numerical core uses (canonical mesh, Brillouin
+radius, surface-following sets, envelope) is in canonical units about the frame origin, which is
+the centre of mass of the body's truth interior (see :meth:`Body.recentred`).
+
+Catalogue bodies are read from the folder named by ``HAMGRAV_BODIES`` (default:
+``../shared/bodies`` beside the repository root); synthetic bodies are generated here and need
+no data at all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from ..errors import BodyDataError, InputError
+from ..units import CanonicalUnits
+
+__all__ = [
+    "Body",
+    "BodyDataError",
+    "G_SI",
+    "SYNTHETIC_BODIES",
+    "bodies_dir",
+    "contact_binary",
+    "list_bodies",
+    "load_body",
+]
+
+#: Newtonian constant of gravitation [m^3 kg^-1 s^-2] (CODATA 2018).
+G_SI = 6.67430e-11
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """A small body.
+
+    Attributes:
+        name: catalogue name.
+        gm_m3_s2: gravitational parameter [m^3/s^2].
+        spin_period_s: sidereal spin period [s] about +z.
+        mesh_m: closed, outward-wound triangle mesh [m], body-fixed frame.
+        description: free text (provenance).
+        data_files: named data files that came with the body (e.g. reference mascons).
+        origin_m: position [m], in the mesh's own frame, of this body's frame origin.
+    """
+
+    name: str
+    gm_m3_s2: float
+    spin_period_s: float
+    mesh_m: trimesh.Trimesh
+    description: str = ""
+    data_files: dict[str, Path] = field(default_factory=dict)
+    origin_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @cached_property
+    def units(self) -> CanonicalUnits:
+        """The body's canonical units (length = synchronous radius, time = period / 2 pi)."""
+        return CanonicalUnits(self.gm_m3_s2, self.spin_period_s)
+
+    @cached_property
+    def mesh(self) -> trimesh.Trimesh:
+        """The shape in canonical units, about this body's frame origin."""
+        vertices = (np.asarray(self.mesh_m.vertices) - np.asarray(self.origin_m)) / (
+            self.units.length_m
+        )
+        return trimesh.Trimesh(vertices, np.asarray(self.mesh_m.faces), process=False)
+
+    @cached_property
+    def volume(self) -> float:
+        """Volume in canonical units (length unit cubed)."""
+        return float(self.mesh.volume)
+
+    @cached_property
+    def constant_density_centre_of_mass(self) -> np.ndarray:
+        """Centre of mass of the shape at constant density, canonical, in this frame."""
+        return np.asarray(self.mesh.center_mass, dtype=float)
+
+    @cached_property
+    def brillouin_radius(self) -> float:
+        """Largest distance of the surface from the frame origin (canonical)."""
+        return float(np.linalg.norm(self.mesh.vertices, axis=1).max())
+
+    @property
+    def brillouin_radius_m(self) -> float:
+        """Brillouin radius [m]."""
+        return self.brillouin_radius * self.units.length_m
+
+    def recentred(self, origin: np.ndarray) -> Body:
+        """The same body with its frame origin moved to ``origin`` (canonical, this frame)."""
+        shift_m = np.asarray(origin, dtype=float) * self.units.length_m
+        new_origin = tuple(float(v) for v in np.asarray(self.origin_m) + shift_m)
+        return replace(self, origin_m=new_origin)
+
+    def surface_points(self, altitude: float) -> np.ndarray:
+        """Mesh vertices moved radially outward by ``altitude`` (canonical length), shape (n, 3)."""
+        v = np.asarray(self.mesh.vertices, dtype=float)
+        r = np.linalg.norm(v, axis=1, keepdims=True)
+        return v * (1.0 + altitude / r)
+
+    def envelope_points(self, max_altitude_rb: float = 0.15, levels: int = 15) -> np.ndarray:
+        """The close-proximity envelope: every vertex raised radially to ``levels`` altitudes
+        evenly spaced in (0, max_altitude_rb * R_B]; canonical, shape (levels * n, 3)."""
+        if levels < 1 or max_altitude_rb <= 0:
+            raise ValueError("envelope needs levels >= 1 and max_altitude_rb > 0")
+        altitudes = np.linspace(max_altitude_rb / levels, max_altitude_rb, levels)
+        altitudes = altitudes * self.brillouin_radius
+        return np.concatenate([self.surface_points(h) for h in altitudes])
+
+    def envelope_fraction_inside_brillouin(
+        self, max_altitude_rb: float = 0.15, levels: int = 15
+    ) -> float:
+        """Fraction of the envelope points with r < R_B (where an exterior SH series diverges)."""
+        pts = self.envelope_points(max_altitude_rb, levels)
+        return float(np.mean(np.linalg.norm(pts, axis=1) < self.brillouin_radius))
+
+    def altitude_to_canonical(self, altitude_m: float) -> float:
+        """An altitude [m] in canonical length."""
+        return float(self.units.to_length(altitude_m))
+
+
+# --------------------------------------------------------------------------------------------
+# Catalogue
+
+
+def bodies_dir() -> Path:
+    """The body data folder: ``$HAMGRAV_BODIES`` or ``../shared/bodies`` beside the repo root."""
+    env = os.environ.get("HAMGRAV_BODIES")
+    if env:
+        return Path(env).expanduser()
+    repo_root = Path(__file__).resolve().parents[3]
+    return repo_root.parent / "shared" / "bodies"
+
+
+def _read_catalogue(folder: Path) -> dict:
+    path = folder / "catalogue.json"
+    if not path.is_file():
+        raise BodyDataError(
+            f"body catalogue not found: {path}. Set HAMGRAV_BODIES to the folder holding "
+            "catalogue.json and the body sub-folders, or use the synthetic body "
+            "('hamgrav bodies' lists what can be loaded)."
+        )
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise BodyDataError(
+            f"body catalogue {path} is not valid JSON ({exc}); restore the file from the "
+            "shared data folder."
+        ) from None
+    if not isinstance(data, dict):
+        raise BodyDataError(f"body catalogue {path} must hold one JSON object keyed by body name")
+    return data
+
+
+def _load_mesh(path: Path) -> trimesh.Trimesh:
+    if not path.is_file():
+        raise BodyDataError(
+            f"mesh file not found: {path}; restore it or point HAMGRAV_BODIES "
+            "at a complete body data folder"
+        )
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types on bad input
+        raise BodyDataError(f"cannot read mesh {path}: {exc}; the file is malformed") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) < 4:
+        raise BodyDataError(f"mesh {path} holds no triangle surface; the file is malformed")
+    if not mesh.is_watertight or mesh.volume <= 0:
+        raise BodyDataError(
+            f"mesh {path} is not a closed, outward-wound surface (watertight="
+            f"{mesh.is_watertight}, volume={mesh.volume:.4g}); hamgrav needs a closed mesh"
+        )
+    return mesh
+
+
+def list_bodies(folder: str | os.PathLike | None = None) -> list[str]:
+    """Names of the bodies that can be loaded: the synthetic ones, then the catalogue's (in
+    ``folder``, default :func:`bodies_dir`)."""
+    names = list(SYNTHETIC_BODIES)
+    try:
+        names += sorted(_read_catalogue(Path(folder) if folder else bodies_dir()))
+    except BodyDataError:
+        pass
+    return names
+
+
+def load_body(
+    name: str, *, low_resolution: bool = False, folder: str | os.PathLike | None = None
+) -> Body:
+    """Load a body by name: a synthetic one (see :data:`SYNTHETIC_BODIES`) or an entry of the
+    catalogue in ``folder`` (default :func:`bodies_dir`)."""
+    key = name.strip().lower()
+    if key in SYNTHETIC_BODIES:
+        return SYNTHETIC_BODIES[key]()
+    folder = Path(folder) if folder else bodies_dir()
+    catalogue = _read_catalogue(folder)
+    if key not in catalogue:
+        raise BodyDataError(
+            f"unknown body {name!r}; known: {', '.join(list_bodies(folder))} "
+            f"(catalogue {folder / 'catalogue.json'})"
+        )
+    entry = catalogue[key]
+    try:
+        gm = float(entry["gm_m3_s2"])
+        period = float(entry["spin_period_s"])
+        files = dict(entry["files"])
+        mesh_file = files["mesh_low" if low_resolution else "mesh"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BodyDataError(
+            f"catalogue entry {key!r} in {folder / 'catalogue.json'} is malformed (missing or "
+            f"bad field {exc}); it needs gm_m3_s2, spin_period_s and files.mesh"
+        ) from None
+    body_folder = folder / key
+    mesh = _load_mesh(body_folder / mesh_file)
+    return Body(
+        name=key,
+        gm_m3_s2=gm,
+        spin_period_s=period,
+        mesh_m=mesh,
+        description=str(entry.get("description", "")),
+        data_files={k: body_folder / v for k, v in files.items()},
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Synthetic bodies
+
+
+def _ray_exit_ellipsoid(directions: np.ndarray, centre, semi_axes) -> np.ndarray:
+    """Distance from the origin (inside the ellipsoid) to its surface along unit directions."""
+    c = np.asarray(centre, float) / np.asarray(semi_axes, float)
+    u = directions / np.asarray(semi_axes, float)
+    a = np.sum(u * u, axis=1)
+    b = u @ c
+    cc = c @ c - 1.0
+    if cc >= 0:
+        raise ValueError("the ray origin must lie inside every lobe")
+    return (b + np.sqrt(b * b - a * cc)) / a
+
+
+def contact_binary(
+    *,
+    name: str = "synthetic",
+    length_m: float = 560.0,
+    head_ratio: float = 0.7,
+    density_kg_m3: float = 1900.0,
+    spin_period_s: float = 12.0 * 3600.0,
+    subdivisions: int = 4,
+) -> Body:
+    """A bilobed contact binary: two ellipsoidal lobes joined by a smooth neck.
+
+    The surface is star-shaped about the contact point, built by radially scaling an icosphere
+    with a smooth maximum of the two lobes' radial functions, so it is closed and outward-wound
+    by construction. ``length_m`` is the overall length along x, ``head_ratio`` the head lobe's
+    size relative to the main lobe; GM follows from ``density_kg_m3`` and the mesh volume.
+    """
+    if not (length_m > 0 and 0.2 <= head_ratio <= 1.0 and density_kg_m3 > 0 and spin_period_s > 0):
+        raise InputError(
+            "contact_binary needs length_m > 0, 0.2 <= head_ratio <= 1, density_kg_m3 > 0 and "
+            "spin_period_s > 0"
+        )
+    # Lobe geometry in units of the main lobe's long semi-axis; lobes overlap around x = 0.
+    main_axes = np.array([1.0, 0.68, 0.56])
+    head_axes = head_ratio * np.array([1.0, 0.78, 0.66])
+    overlap = 0.18 * head_ratio
+    main_centre = np.array([-(1.0 - overlap), 0.0, 0.0])
+    head_centre = np.array([head_axes[0] - overlap, 0.0, 0.02])
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    u = np.asarray(sphere.vertices) / np.linalg.norm(sphere.vertices, axis=1, keepdims=True)
+    r1 = _ray_exit_ellipsoid(u, main_centre, main_axes)
+    r2 = _ray_exit_ellipsoid(u, head_centre, head_axes)
+    k = 12.0  # smooth-maximum sharpness: a rounded neck rather than a crease
+    r = (r1**k + r2**k) ** (1.0 / k)
+    extent = (main_centre[0] - main_axes[0], head_centre[0] + head_axes[0])
+    scale = length_m / (extent[1] - extent[0])
+    vertices = u * (r * scale)[:, None]
+    mesh = trimesh.Trimesh(vertices, np.asarray(sphere.faces), process=False)
+    mesh.apply_translation(-np.asarray(mesh.center_mass))
+    gm = G_SI * density_kg_m3 * float(mesh.volume)
+    return Body(
+        name=name,
+        gm_m3_s2=gm,
+        spin_period_s=spin_period_s,
+        mesh_m=mesh,
+        description=(
+            f"synthetic contact binary, length {length_m:g} m, head ratio {head_ratio:g}, "
+            f"density {density_kg_m3:g} kg/m^3, spin period {spin_period_s:g} s"
+        ),
+    )
+
+
+#: Bodies generated by hamgrav itself, available without any data folder.
+SYNTHETIC_BODIES = {
+    "synthetic": contact_binary,
+}

@@ -1,0 +1,92 @@
+"""``Arcs``: observed tracking arcs and what is needed to interpret and check them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .mascons import MasconSet
+
+__all__ = ["Arcs"]
+
+
+@dataclass(frozen=True, eq=False)
+class Arcs:
+    """Observed arcs in canonical units (length = synchronous radius, time = spin period /
+    2 pi), with what is needed to interpret and check them.
+
+    Attributes:
+        times: (n_arcs, m) canonical times of the samples.
+        states: (n_arcs, m, 6) noisy canonical states (q, p).
+        true_states: (n_arcs, m, 6) the truth at the same times.
+        trajectory: (n_arcs,) index of the trajectory (orbit, particle, descent) of each arc.
+        trajectory_kind: kind of each trajectory ("orbit", ...).
+        trajectory_info: per-trajectory arrays (e.g. radius_rb, inclination_deg, initial_state).
+        body_name: the body; gm_m3_s2 [m^3/s^2] and spin_period_s [s] fix the canonical units.
+        body_origin_m: frame origin of the arcs in the body mesh's own frame [m].
+        sigma_r_m [m], sigma_v_m_s [m/s]: noise levels per component.
+        truth: the truth mascons (canonical, arcs' frame), ``interior`` its name,
+            ``interior_parameters`` its settings.
+        seed: generator seed of the campaign; config: the campaign description.
+    """
+
+    times: np.ndarray
+    states: np.ndarray
+    true_states: np.ndarray
+    trajectory: np.ndarray
+    trajectory_kind: tuple[str, ...]
+    trajectory_info: dict[str, np.ndarray]
+    body_name: str
+    gm_m3_s2: float
+    spin_period_s: float
+    body_origin_m: tuple[float, float, float]
+    sigma_r_m: float
+    sigma_v_m_s: float
+    truth: MasconSet
+    interior: str
+    interior_parameters: dict = field(default_factory=dict)
+    seed: int = 0
+    config: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n, m = np.shape(self.times)
+        if np.shape(self.states) != (n, m, 6) or np.shape(self.true_states) != (n, m, 6):
+            raise ValueError(
+                f"arcs need times (n, m) and states (n, m, 6); got {np.shape(self.times)}, "
+                f"{np.shape(self.states)}, {np.shape(self.true_states)}"
+            )
+        if np.shape(self.trajectory) != (n,):
+            raise ValueError("trajectory must hold one index per arc")
+        if n and (self.trajectory.min() < 0 or self.trajectory.max() >= len(self.trajectory_kind)):
+            raise ValueError("trajectory indices must refer to trajectory_kind entries")
+
+    @property
+    def n_arcs(self) -> int:
+        """Number of arcs."""
+        return int(np.shape(self.times)[0])
+
+    @property
+    def samples_per_arc(self) -> int:
+        """Samples in each arc."""
+        return int(np.shape(self.times)[1])
+
+    @property
+    def n_trajectories(self) -> int:
+        """Number of trajectories (orbits, particles, descents) the arcs belong to."""
+        return len(self.trajectory_kind)
+
+    def subset(self, arc_indices) -> Arcs:
+        """The arcs selected by ``arc_indices`` (trajectory tables kept whole)."""
+        idx = np.asarray(arc_indices)
+        return replace(
+            self,
+            times=self.times[idx],
+            states=self.states[idx],
+            true_states=self.true_states[idx],
+            trajectory=self.trajectory[idx],
+        )
+
+    def arcs_of(self, trajectories) -> np.ndarray:
+        """Indices of the arcs that belong to the given trajectory indices."""
+        return np.flatnonzero(np.isin(self.trajectory, np.asarray(trajectories)))

@@ -1,0 +1,80 @@
+"""Field-error metrics of the paper and the point sets they are evaluated on (canonical units).
+
+eps = sqrt(sum (V_model - V_target)^2 / sum V_target^2) over an evaluation set, where the
+target of a model's learnable term is the truth's potential minus the model's known part
+(minus the point mass from tracking alone, minus the shape prior in residual mode): eps = 1 is
+the error of applying no correction at all.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .mascons import MasconSet, mascon_acceleration, mascon_potential
+from .model import Model, evaluate_field
+
+__all__ = [
+    "central_potential",
+    "perturbing_potential",
+    "shell_points",
+    "relative_field_error",
+    "perturbation_ratio",
+    "field_errors",
+]
+
+
+def central_potential(points: np.ndarray) -> np.ndarray:
+    """1/r of the unit point mass at the origin, at ``points`` (n, 3); returns (n,)."""
+    return 1.0 / np.linalg.norm(np.atleast_2d(points), axis=1)
+
+
+def perturbing_potential(mascons: MasconSet, points: np.ndarray) -> np.ndarray:
+    """V - 1/r of a unit-mass mascon set: what a correction term has to represent."""
+    return mascon_potential(mascons, points) - central_potential(points)
+
+
+def shell_points(radius: float, n: int = 500, seed: int = 0) -> np.ndarray:
+    """``n`` seeded random directions (uniform on the sphere) at ``radius`` [canonical]; (n, 3)."""
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    return radius * u / np.linalg.norm(u, axis=1, keepdims=True)
+
+
+def relative_field_error(v_model: np.ndarray, v_truth: np.ndarray) -> float:
+    """eps = sqrt(sum (V_model - V_truth)^2 / sum V_truth^2) (dimensionless).
+
+    0 is a perfect recovery; 1 is the error of no correction at all (V_model = 0).
+    """
+    v_model = np.asarray(v_model, dtype=float)
+    v_truth = np.asarray(v_truth, dtype=float)
+    if v_model.shape != v_truth.shape:
+        raise ValueError(f"shape mismatch: model {v_model.shape} vs truth {v_truth.shape}")
+    return float(np.sqrt(np.sum((v_model - v_truth) ** 2) / np.sum(v_truth**2)))
+
+
+def perturbation_ratio(mascons: MasconSet, points: np.ndarray) -> float:
+    """Median over ``points`` of |a_perturbing| / |a_central| (dimensionless)."""
+    points = np.atleast_2d(points)
+    a_total = mascon_acceleration(mascons, points)
+    r = np.linalg.norm(points, axis=1, keepdims=True)
+    a_central = -points / r**3
+    ratio = np.linalg.norm(a_total - a_central, axis=1) / np.linalg.norm(a_central, axis=1)
+    return float(np.median(ratio))
+
+
+def field_errors(
+    model: Model, params: np.ndarray, truth: MasconSet, sets: dict[str, np.ndarray]
+) -> dict[str, float]:
+    """Relative field error of ``model``'s learnable term at ``params`` on each named point set
+    (canonical points (n, 3)); 1.0 for a model without a learnable term (no correction)."""
+    out = {}
+    for name, pts in sets.items():
+        v_truth = mascon_potential(truth, pts)
+        v_known, _ = evaluate_field(model, params, pts, which="known")
+        target = v_truth - v_known
+        if model.learnable is None:
+            v_model = np.zeros_like(target)
+        else:
+            v_model, _ = evaluate_field(model, params, pts, which="learnable")
+        out[name] = relative_field_error(v_model, target)
+    return out

@@ -1,0 +1,264 @@
+"""A dynamical model: known terms, at most one learnable term, per-trajectory terms; compiled once.
+
+Runtime-parameter layout of the compiled system (``heyoka.par``)::
+
+    par[0 : n_learn]                        the learnable term's parameters (theta)
+    par[n_learn : n_learn + n_trajectory]   the per-trajectory terms' parameters, term by term,
+                                            for the trajectory being propagated
+
+The truth is a model too: its one known term is its mascon set. A fit's global parameter
+vector (theta, then optionally every trajectory's own parameters) is mapped to each arc's
+runtime parameters by :class:`hamgrav.core.problem.ArcProblem`.
+
+This module holds hamgrav's one compile cache: integrators (batch or scalar, plain or
+variational) and field functions are compiled once per (structure key, tolerance, kind) and
+reused; changing parameters never recompiles.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import heyoka as hy
+import numpy as np
+
+from .hamiltonian import POSITION, STATE_VARIABLES, equations_of_motion, rotating_hamiltonian
+from .terms import Term, term_from_description
+
+__all__ = [
+    "Model",
+    "DEFAULT_FIT_TOLERANCE",
+    "TRUTH_TOLERANCE",
+    "CompiledIntegrators",
+    "compiled_integrators",
+    "field_function",
+    "evaluate_field",
+    "hamiltonian_values",
+    "cache_info",
+]
+
+#: Relative/absolute tolerance of fit propagations (states and sensitivities).
+DEFAULT_FIT_TOLERANCE = 1e-12
+#: Tolerance of truth propagations (simulated tracking, true descents).
+TRUTH_TOLERANCE = 1e-14
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """``known`` terms (no runtime parameters), an optional ``learnable`` term and
+    ``per_trajectory`` terms (parameters with one value per trajectory, e.g. SRP)."""
+
+    known: tuple[Term, ...]
+    learnable: Term | None = None
+    per_trajectory: tuple[Term, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "known", tuple(self.known))
+        object.__setattr__(self, "per_trajectory", tuple(self.per_trajectory))
+        for term in self.known:
+            if term.n_params or term.trajectory_params:
+                raise ValueError(f"known term {term.key()} must not carry parameters")
+        if self.learnable is not None and (
+            self.learnable.trajectory_params or not self.learnable.n_params
+        ):
+            raise ValueError(f"learnable term {self.learnable.key()} must have shared parameters")
+        for term in self.per_trajectory:
+            if term.n_params or not term.trajectory_params:
+                raise ValueError(f"per-trajectory term {term.key()} needs trajectory_params only")
+
+    @property
+    def n_learn(self) -> int:
+        """Number of learnable (shared) parameters."""
+        return 0 if self.learnable is None else self.learnable.n_params
+
+    @property
+    def n_trajectory_params(self) -> int:
+        """Number of parameters each trajectory carries (all per-trajectory terms)."""
+        return sum(t.trajectory_params for t in self.per_trajectory)
+
+    @property
+    def n_system_params(self) -> int:
+        """Length of the compiled system's runtime-parameter vector."""
+        return self.n_learn + self.n_trajectory_params
+
+    def key(self) -> str:
+        """Structure key: equal keys compile to the same code."""
+        parts = [t.key() for t in self.known]
+        parts.append("learn:" + (self.learnable.key() if self.learnable else "none"))
+        parts.append("traj:" + (",".join(t.key() for t in self.per_trajectory) or "none"))
+        return "|".join(parts)
+
+    def potentials(self, which: str = "all") -> list[hy.expression]:
+        """The potential terms: ``which`` = "all", "known", "learnable" or "total" (known
+        plus learnable, without per-trajectory terms)."""
+        if which not in ("all", "known", "learnable", "total"):
+            raise ValueError(f"which must be all, known, learnable or total, got {which!r}")
+        out = [] if which == "learnable" else [t.potential() for t in self.known]
+        if which != "known" and self.learnable is not None:
+            out.append(self.learnable.potential(0))
+        if which == "all":
+            offset = self.n_learn
+            for term in self.per_trajectory:
+                out.append(term.potential(offset))
+                offset += term.trajectory_params
+        return out
+
+    def hamiltonian(self) -> hy.expression:
+        """The rotating-frame Hamiltonian of this model."""
+        return rotating_hamiltonian(self.potentials())
+
+    def system(self):
+        """Hamilton's equations (heyoka system) of this model."""
+        return equations_of_motion(self.hamiltonian())
+
+    def describe(self) -> dict:
+        """Plain-data description (JSON-able), enough to rebuild the model."""
+        return {
+            "known": [t.describe() for t in self.known],
+            "learnable": self.learnable.describe() if self.learnable else None,
+            "per_trajectory": [t.describe() for t in self.per_trajectory],
+        }
+
+    @classmethod
+    def from_description(cls, d: dict) -> Model:
+        """Rebuild a model from :meth:`describe` output."""
+        return cls(
+            known=tuple(term_from_description(t) for t in d["known"]),
+            learnable=term_from_description(d["learnable"]) if d.get("learnable") else None,
+            per_trajectory=tuple(term_from_description(t) for t in d.get("per_trajectory", [])),
+        )
+
+
+# ------------------------------------------------------------------------------ compile cache
+_CACHE: OrderedDict[tuple, object] = OrderedDict()
+_CACHE_SIZE = 48  # compiled objects kept; the oldest go first
+_LOCK = threading.Lock()
+_BUILDS: dict[str, int] = {}
+
+
+def _cached(key: tuple, build):
+    with _LOCK:
+        if key in _CACHE:
+            _CACHE.move_to_end(key)
+            return _CACHE[key]
+        _BUILDS[key[1]] = _BUILDS.get(key[1], 0) + 1
+        value = build()
+        _CACHE[key] = value
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+        return value
+
+
+def cache_info() -> dict[str, int]:
+    """How many objects of each kind ("batch", "scalar", "field", "energy") were compiled in
+    this process so far (a recompilation inside a loop shows up here)."""
+    return dict(_BUILDS)
+
+
+class CompiledIntegrators:
+    """The compiled integrator of one model structure and independent copies of it, one per
+    thread (copying does not recompile). ``lock`` serialises users of the set."""
+
+    def __init__(self, integrator):
+        self.integrators = [integrator]
+        self.lock = threading.Lock()
+
+    def take(self, n: int) -> list:
+        """At least ``n`` integrators (copies made on first demand); hold ``lock`` to use them."""
+        while len(self.integrators) < n:
+            self.integrators.append(copy.deepcopy(self.integrators[0]))
+        return self.integrators[:n]
+
+
+def compiled_integrators(
+    model: Model,
+    *,
+    variational: bool = False,
+    batch: bool = True,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+) -> CompiledIntegrators:
+    """The (cached) Taylor integrator of ``model``: in batch mode (SIMD width of this CPU) or
+    scalar; with ``variational`` it also carries d state / d par for every runtime parameter
+    (first order): 6 + 6 n_par state variables, the sensitivities after the state."""
+    width = int(hy.recommended_simd_size()) if batch else 1
+
+    def build():
+        sys = model.system()
+        n_par = model.n_system_params
+        n_state = 6
+        if variational:
+            if n_par == 0:
+                raise ValueError("a model with no runtime parameters has no sensitivities")
+            sys = hy.var_ode_sys(sys, hy.var_args.params, order=1)
+            n_state = 6 * (1 + n_par)
+        kwargs = {"tol": tol, "compact_mode": True}
+        if batch:
+            state = np.zeros((n_state, width))
+            state[0] = state[4] = 1.0
+            if n_par:
+                kwargs["pars"] = np.zeros((n_par, width))
+            return CompiledIntegrators(hy.taylor_adaptive_batch(sys, state, **kwargs))
+        state = np.zeros(n_state)
+        state[0] = state[4] = 1.0
+        if n_par:
+            kwargs["pars"] = np.zeros(n_par)
+        return CompiledIntegrators(hy.taylor_adaptive(sys, state, **kwargs))
+
+    kind = ("var" if variational else "plain") + ("-batch" if batch else "-scalar")
+    return _cached((model.key(), "batch" if batch else "scalar", kind, float(tol), width), build)
+
+
+def field_function(model: Model, which: str = "learnable"):
+    """Compiled (cached) potential and acceleration of part of ``model`` at body-fixed points:
+    ``which`` = "learnable" (the correction N), "known" or "total" (both). Built from the
+    same expressions as the dynamics, so the field and the dynamics cannot disagree.
+
+    Returns a heyoka ``cfunc`` with outputs (V, a_x, a_y, a_z), inputs (x, y, z) and the
+    learnable parameters as its ``pars``.
+    """
+
+    def build():
+        if which == "learnable" and model.learnable is None:
+            raise ValueError("the model has no learnable term")
+        v = hy.sum(model.potentials(which))
+        acc = [hy.diff(v, q) for q in POSITION]
+        return hy.cfunc([v, *acc], vars=list(POSITION), compact_mode=True)
+
+    if which not in ("learnable", "known", "total"):
+        raise ValueError(f"which must be 'learnable', 'known' or 'total', got {which!r}")
+    return _cached((model.key(), "field", which), build)
+
+
+def evaluate_field(model: Model, params: np.ndarray, points: np.ndarray, which: str = "learnable"):
+    """Potential (n,) and acceleration (n, 3) [canonical] of part of ``model`` (see
+    :func:`field_function`) at ``points`` (n, 3); ``params[:n_learn]`` are the learnable ones."""
+    f = field_function(model, which)
+    points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)).T)
+    n = points.shape[1]
+    n_learn = model.n_learn
+    if which != "known" and n_learn:
+        theta = np.asarray(params, float)[:n_learn, None]
+        out = f(points, pars=np.ascontiguousarray(np.broadcast_to(theta, (n_learn, n))))
+    else:
+        out = f(points)
+    return out[0], out[1:].T
+
+
+def hamiltonian_values(model: Model, states: np.ndarray, params=None, time: float = 0.0):
+    """The value of H (the Jacobi integral when H does not depend on time) at canonical states
+    (..., 6), with the model's runtime parameters ``params`` (n_system_params,)."""
+
+    def build():
+        return hy.cfunc([model.hamiltonian()], vars=list(STATE_VARIABLES), compact_mode=True)
+
+    f = _cached((model.key(), "energy"), build)
+    states = np.asarray(states, dtype=float)
+    flat = np.ascontiguousarray(states.reshape(-1, 6).T)
+    kwargs = {"time": np.full(flat.shape[1], float(time))}
+    if model.n_system_params:
+        p = np.asarray(params, float).reshape(-1, 1)
+        kwargs["pars"] = np.ascontiguousarray(np.broadcast_to(p, (len(p), flat.shape[1])))
+    return f(flat, **kwargs)[0].reshape(states.shape[:-1])

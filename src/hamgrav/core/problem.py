@@ -1,0 +1,213 @@
+"""The arc least-squares problem: predicted arcs and their exact parameter sensitivities.
+
+One path for every model: each arc is anchored at its first noisy sample and propagated by
+:func:`hamgrav.core.propagation.propagate_batch` with the model's variational equations
+(heyoka ``var_ode_sys`` w.r.t. the runtime parameters, first order).
+
+Global parameter vector ``theta`` = [the learnable term's parameters, then, when
+``estimate_trajectory_params``, the per-trajectory parameters of every trajectory
+(trajectory-major: trajectory 0's, then trajectory 1's, ...)]. Per-trajectory parameters that
+are not estimated are data (``trajectory_values``). Residuals r = y - x(t; y_0, theta) on
+canonical states (optionally divided by per-component sigmas), cost J = r.r / 2, design
+matrix A = dr/dtheta = -Phi, gradient A^T r, normal matrix A^T A.
+
+Solvers use an :class:`ArcProblem` only through ``cost``, ``gradient`` and
+``normal_equations``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import PropagationError
+from .arcs import Arcs
+from .model import DEFAULT_FIT_TOLERANCE, Model
+from .propagation import propagate_batch
+
+__all__ = ["ArcProblem", "Prediction"]
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """States (n_arcs, m, 6) and, when asked, sensitivities (n_arcs, m, 6, n_params)."""
+
+    states: np.ndarray
+    jacobian: np.ndarray | None
+
+
+class ArcProblem:
+    """The least-squares problem of fitting ``model`` to ``arcs``.
+
+    Args:
+        model: the dynamical model.
+        arcs: the observations.
+        estimate_trajectory_params: estimate the per-trajectory parameters (model's
+            ``per_trajectory`` terms) of every trajectory together with the learnable ones.
+        trajectory_values: (n_trajectories, n_trajectory_params) values of the per-trajectory
+            parameters when they are data (required then; e.g. SRP area-to-mass [m^2/kg]).
+        sigmas: optional per-component scale (6,) of the residuals (canonical); None = the
+            paper's unweighted canonical residuals.
+        tol: integrator tolerance.
+        threads: worker threads (default: the number of CPUs).
+        max_steps: Taylor steps allowed per batch of arcs before a trial is declared stiff.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        arcs: Arcs,
+        *,
+        estimate_trajectory_params: bool = False,
+        trajectory_values: np.ndarray | None = None,
+        sigmas: np.ndarray | None = None,
+        tol: float = DEFAULT_FIT_TOLERANCE,
+        threads: int | None = None,
+        max_steps: int = 500,
+    ):
+        self.model = model
+        self.arcs = arcs
+        self.tol = tol
+        self.n_trajectories = len(arcs.trajectory_kind)
+        n_tp = model.n_trajectory_params
+        if estimate_trajectory_params and n_tp == 0:
+            raise ValueError("estimate_trajectory_params needs a model with per-trajectory terms")
+        self.estimate_trajectory_params = bool(estimate_trajectory_params)
+        if n_tp and not estimate_trajectory_params:
+            values = None if trajectory_values is None else np.asarray(trajectory_values, float)
+            if values is None or values.reshape(self.n_trajectories, -1).shape[1] != n_tp:
+                raise ValueError(
+                    f"give trajectory_values of shape ({self.n_trajectories}, {n_tp}): the "
+                    "per-trajectory parameters are data when they are not estimated"
+                )
+            self.trajectory_values = values.reshape(self.n_trajectories, n_tp)
+        else:
+            self.trajectory_values = None
+        self.n_params = model.n_learn + (
+            self.n_trajectories * n_tp if estimate_trajectory_params else 0
+        )
+        self.weights = None if sigmas is None else 1.0 / np.asarray(sigmas, dtype=float)
+        self.threads = threads
+        self.max_steps = int(max_steps)
+
+    # ---------------------------------------------------------------- parameter mapping
+    def trajectory_params(self, theta: np.ndarray) -> np.ndarray:
+        """(n_trajectories, n_trajectory_params) per-trajectory values at ``theta``."""
+        n_tp = self.model.n_trajectory_params
+        if self.estimate_trajectory_params:
+            return np.asarray(theta[self.model.n_learn :]).reshape(self.n_trajectories, n_tp)
+        if self.trajectory_values is None:
+            return np.zeros((self.n_trajectories, n_tp))
+        return self.trajectory_values
+
+    def _runtime_params(self, theta: np.ndarray, arc_idx: np.ndarray) -> np.ndarray:
+        """Runtime parameters (n_sys, len(arc_idx)) of the compiled system for these arcs."""
+        m = self.model
+        out = np.zeros((m.n_system_params, len(arc_idx)))
+        out[: m.n_learn] = np.asarray(theta[: m.n_learn])[:, None]
+        if m.n_trajectory_params:
+            out[m.n_learn :] = self.trajectory_params(theta)[self.arcs.trajectory[arc_idx]].T
+        return out
+
+    def _scatter_columns(self, jac_sys: np.ndarray, arc_idx: np.ndarray) -> np.ndarray:
+        """Map d state / d runtime-par (k, m, 6, n_sys) to d state / d theta."""
+        m = self.model
+        if not self.estimate_trajectory_params:
+            return jac_sys[..., : m.n_learn]
+        n_tp = m.n_trajectory_params
+        out = np.zeros((*jac_sys.shape[:-1], self.n_params))
+        out[..., : m.n_learn] = jac_sys[..., : m.n_learn]
+        first = m.n_learn + n_tp * self.arcs.trajectory[arc_idx]
+        for k, c in enumerate(first):
+            out[k, ..., c : c + n_tp] = jac_sys[k, ..., m.n_learn :]
+        return out
+
+    # ---------------------------------------------------------------- propagation
+    def _indices(self, arc_indices) -> np.ndarray:
+        return np.arange(self.arcs.n_arcs) if arc_indices is None else np.asarray(arc_indices)
+
+    def predict(self, theta, arc_indices=None, *, sensitivities: bool = False) -> Prediction:
+        """Predicted states (and sensitivities) of the selected arcs at their sample times.
+
+        Raises :class:`~hamgrav.errors.PropagationError` when an arc does not propagate
+        (non-finite, or stiff: more than ``max_steps`` Taylor steps)."""
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (self.n_params,):
+            raise ValueError(f"theta must have {self.n_params} entries, got {theta.shape}")
+        idx = self._indices(arc_indices)
+        run = propagate_batch(
+            self.model,
+            self.arcs.states[idx, 0],
+            self.arcs.times[idx],
+            self._runtime_params(theta, idx),
+            sensitivities=sensitivities,
+            tol=self.tol,
+            threads=self.threads,
+            max_steps=self.max_steps,
+        )
+        if not run.ok.all():
+            bad = idx[~run.ok]
+            why = (
+                f"needed more than {self.max_steps} Taylor steps"
+                if run.exceeded_steps.any()
+                else "did not propagate to the end"
+            )
+            raise PropagationError(
+                f"arcs {bad[:8].tolist()}{'...' if len(bad) > 8 else ''} {why}: the parameters "
+                "make the dynamics stiff or singular"
+            )
+        jac = None
+        if sensitivities:
+            jac = run.sensitivities
+            jac = (
+                self._scatter_columns(jac, idx)
+                if jac.shape[-1]
+                else np.zeros((len(idx), self.arcs.samples_per_arc, 6, self.n_params))
+            )
+        return Prediction(run.states, jac)
+
+    # ---------------------------------------------------------------- least squares
+    def residuals(self, theta, arc_indices=None) -> np.ndarray:
+        """r = y - x (weighted when sigmas were given), shape (n_arcs, m, 6)."""
+        idx = self._indices(arc_indices)
+        r = self.arcs.states[idx] - self.predict(theta, idx).states
+        return r if self.weights is None else r * self.weights
+
+    def cost(self, theta, arc_indices=None) -> float:
+        """J = r.r / 2 over the selected arcs."""
+        r = self.residuals(theta, arc_indices)
+        return 0.5 * float(np.sum(r * r))
+
+    def design(self, theta, arc_indices=None):
+        """(r, A) with r (N,) and A (N, n_params) for N = arcs x samples x 6 (materialised)."""
+        idx = self._indices(arc_indices)
+        pred = self.predict(theta, idx, sensitivities=True)
+        r = self.arcs.states[idx] - pred.states
+        a = -pred.jacobian
+        if self.weights is not None:
+            r = r * self.weights
+            a = a * self.weights[:, None]
+        return r.reshape(-1), a.reshape(-1, self.n_params)
+
+    def normal_equations(self, theta, arc_indices=None, chunk: int = 64):
+        """(J, A^T r, A^T A), accumulated over chunks of arcs without materialising A."""
+        idx = self._indices(arc_indices)
+        n = self.n_params
+        cost, atr, ata = 0.0, np.zeros(n), np.zeros((n, n))
+        for i in range(0, len(idx), chunk):
+            r, a = self.design(theta, idx[i : i + chunk])
+            cost += 0.5 * float(r @ r)
+            atr += a.T @ r
+            ata += a.T @ a
+        return cost, atr, ata
+
+    def gradient(self, theta, arc_indices=None, chunk: int = 64):
+        """(J, A^T r): the cost and its gradient."""
+        idx = self._indices(arc_indices)
+        cost, atr = 0.0, np.zeros(self.n_params)
+        for i in range(0, len(idx), chunk):
+            r, a = self.design(theta, idx[i : i + chunk])
+            cost += 0.5 * float(r @ r)
+            atr += a.T @ r
+        return cost, atr

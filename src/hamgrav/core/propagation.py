@@ -1,0 +1,286 @@
+"""Every propagation in hamgrav goes through this module (the only caller of heyoka's
+``propagate_*``): fitted arcs with their sensitivities, predicted candidate arcs, the truth's
+simulated tracking, descents to contact with the surface.
+
+All inputs and outputs are canonical (length = synchronous radius, time = spin period / 2 pi)
+and the integrators come from the one compile cache of :mod:`hamgrav.core.model`.
+
+- :func:`propagate_batch`: many trajectories, each from its own start time to its own time
+  grid, in SIMD batches over threads, optionally with d state / d runtime-parameters.
+- :func:`propagate_scalar`: one trajectory to a time grid (long truth propagations).
+- :func:`propagate_to_contact`: one trajectory until it crosses a closed surface.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import heyoka as hy
+import numpy as np
+
+from .geometry import points_inside
+from .model import DEFAULT_FIT_TOLERANCE, Model, compiled_integrators
+
+__all__ = [
+    "BatchPropagation",
+    "Touchdown",
+    "propagate_batch",
+    "propagate_scalar",
+    "propagate_to_contact",
+]
+
+
+class _StepLimit:
+    """Step callback stopping a propagation after ``limit`` Taylor steps: a well-posed arc takes
+    a few steps, so a runaway count means the parameters make the dynamics stiff or singular
+    (a solver then rejects the trial instead of waiting on it)."""
+
+    def __init__(self, limit: int | None):
+        self.limit = limit
+        self.steps = 0
+        self.exceeded = False
+
+    def __call__(self, ta) -> bool:
+        self.steps += 1
+        if self.limit is not None and self.steps > self.limit:
+            self.exceeded = True
+            return False
+        return True
+
+
+@dataclass(frozen=True)
+class BatchPropagation:
+    """Result of :func:`propagate_batch`.
+
+    Attributes:
+        states: (n, m, 6) canonical states at the grid times (NaN where ``ok`` is False).
+        sensitivities: (n, m, 6, n_par) d state / d runtime parameter, or None.
+        ok: (n,) whether each trajectory reached its last time with finite states.
+        exceeded_steps: (n,) whether a trajectory's batch hit the Taylor-step limit.
+    """
+
+    states: np.ndarray
+    sensitivities: np.ndarray | None
+    ok: np.ndarray
+    exceeded_steps: np.ndarray
+
+
+def propagate_batch(
+    model: Model,
+    states0: np.ndarray,
+    times: np.ndarray,
+    runtime_params: np.ndarray | None = None,
+    *,
+    sensitivities: bool = False,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+    threads: int | None = None,
+    max_steps: int | None = None,
+) -> BatchPropagation:
+    """Propagate ``states0`` (n, 6), each given at ``times[i, 0]``, to the grids ``times``
+    (n, m), increasing along each row, under ``model``.
+
+    ``runtime_params`` (n_system_params, n) holds each trajectory's runtime parameters (see
+    :mod:`hamgrav.core.model`). Trajectories go in SIMD batches (the last batch padded by
+    repeating its last member) shared out over ``threads`` copies of the compiled integrator.
+    ``max_steps`` caps the Taylor steps per batch (None: no cap).
+    """
+    states0 = np.asarray(states0, dtype=float)
+    times = np.asarray(times, dtype=float)
+    n, n_m = times.shape
+    n_sys = model.n_system_params
+    if states0.shape != (n, 6):
+        raise ValueError(f"states0 must be ({n}, 6), got {states0.shape}")
+    if runtime_params is None:
+        runtime_params = np.zeros((n_sys, n))
+    runtime_params = np.asarray(runtime_params, dtype=float).reshape(n_sys, n)
+    variational = sensitivities and n_sys > 0
+    compiled = compiled_integrators(model, variational=variational, tol=tol)
+    width = compiled.integrators[0].batch_size
+    chunks = [np.arange(i, min(i + width, n)) for i in range(0, n, width)]
+    n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(chunks)))
+
+    states = np.full((n, n_m, 6), np.nan)
+    jac = np.full((n, n_m, 6, n_sys), np.nan) if variational else None
+    ok = np.zeros(n, bool)
+    exceeded = np.zeros(n, bool)
+
+    def work(ta, worker: int):
+        for c in range(worker, len(chunks), n_threads):
+            sel = chunks[c]
+            pad = np.concatenate([sel, np.repeat(sel[-1:], width - len(sel))])
+            ta.set_time(times[pad, 0].copy())
+            st = ta.state
+            st[:] = 0.0
+            st[:6] = states0[pad].T
+            if n_sys:
+                ta.pars[:] = runtime_params[:, pad]
+            limit = _StepLimit(max_steps)
+            res = ta.propagate_grid(np.ascontiguousarray(times[pad].T), callback=limit)
+            grid_states = res[-1]  # (m reached, n_state, width)
+            if limit.exceeded:
+                exceeded[sel] = True
+                continue
+            if grid_states.shape[0] != n_m:
+                continue
+            good = np.all(np.isfinite(grid_states[:, :, : len(sel)]), axis=(0, 1))
+            ok[sel] = good
+            states[sel] = np.transpose(grid_states[:, :6, : len(sel)], (2, 0, 1))
+            if variational:
+                sens = grid_states[:, 6:, : len(sel)].reshape(n_m, 6, n_sys, len(sel))
+                jac[sel] = np.transpose(sens, (3, 0, 1, 2))
+
+    with compiled.lock:
+        integrators = compiled.take(n_threads)
+        if n_threads == 1:
+            work(integrators[0], 0)
+        else:
+            with ThreadPoolExecutor(n_threads) as pool:
+                futures = [pool.submit(work, integrators[w], w) for w in range(n_threads)]
+                for f in futures:
+                    f.result()
+    states[~ok] = np.nan
+    if jac is not None:
+        jac[~ok] = np.nan
+    if sensitivities and jac is None:
+        jac = np.zeros((n, n_m, 6, 0))
+    return BatchPropagation(states, jac, ok, exceeded)
+
+
+def propagate_scalar(
+    model: Model,
+    state0: np.ndarray,
+    times: np.ndarray,
+    params: np.ndarray | None = None,
+    *,
+    t0: float = 0.0,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+) -> tuple[np.ndarray, bool]:
+    """Propagate one canonical state from ``t0`` to the increasing ``times`` under ``model``
+    with runtime parameters ``params`` (n_system_params,).
+
+    Returns ``(states, ok)``: states (len(times), 6), NaN after a failure, and whether the
+    integration reached the last time.
+    """
+    times = np.asarray(times, dtype=float)
+    out = np.full((len(times), 6), np.nan)
+    if len(times) == 0:
+        return out, True
+    compiled = compiled_integrators(model, batch=False, tol=tol)
+    with compiled.lock:
+        ta = compiled.integrators[0]
+        _set_scalar(ta, model, state0, t0, params)
+        if times[0] != t0:
+            res = ta.propagate_grid(np.concatenate([[t0], times]))
+            states = res[-1][1:]
+        else:
+            res = ta.propagate_grid(times)
+            states = res[-1]
+    n = len(states)
+    out[:n] = states
+    return out, bool(res[0] == hy.taylor_outcome.time_limit and n == len(times))
+
+
+def _set_scalar(ta, model: Model, state0, t0: float, params) -> None:
+    ta.time = float(t0)
+    ta.state[:] = np.asarray(state0, dtype=float)
+    if model.n_system_params:
+        ta.pars[:] = np.asarray(params, dtype=float)
+
+
+@dataclass(frozen=True)
+class Touchdown:
+    """Outcome of one descent: ``landed``, contact ``time`` and ``point`` (canonical); for a
+    descent that did not land, where it stopped and the ``reason`` (escaped, diverged, timed
+    out)."""
+
+    landed: bool
+    time: float
+    point: np.ndarray
+    reason: str = ""
+
+
+def propagate_to_contact(
+    model: Model,
+    state0: np.ndarray,
+    triangles: np.ndarray,
+    *,
+    params: np.ndarray | None = None,
+    check_step: float,
+    duration: float,
+    escape_radius: float,
+    contact_tol: float,
+    t0: float = 0.0,
+    max_steps_per_chunk: int = 20_000,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+) -> Touchdown:
+    """Propagate ``state0`` under ``model`` until it enters the closed surface ``triangles``
+    (f, 3, 3), all canonical.
+
+    The grid of step ``check_step`` is scanned for the first sample inside the surface (only
+    samples within the surface's bounding radius are tested); the contact time is then refined
+    by bisection to ``contact_tol``. Leaving ``escape_radius``, a non-finite state or more than
+    ``max_steps_per_chunk`` Taylor steps per 200 samples stops the descent as "escaped" or
+    "diverged"; reaching ``t0 + duration`` as "timed out".
+    """
+    r_bound = float(np.linalg.norm(np.asarray(triangles).reshape(-1, 3), axis=1).max())
+    compiled = compiled_integrators(model, batch=False, tol=tol)
+    t_end = t0 + duration
+    grid = np.arange(t0, t_end + check_step, check_step)
+    chunk = 200
+    with compiled.lock:
+        ta = compiled.integrators[0]
+        _set_scalar(ta, model, state0, t0, params)
+        prev_t, prev_state = t0, np.array(state0, dtype=float)
+        for start in range(0, len(grid), chunk):
+            times = grid[start : start + chunk + 1]
+            if len(times) < 2:
+                break
+            ta.time = prev_t
+            ta.state[:] = prev_state
+            limit = _StepLimit(max_steps_per_chunk)
+            res = ta.propagate_grid(times, callback=limit)
+            states = res[-1]
+            n_ok = len(states)
+            if limit.exceeded:
+                return Touchdown(False, float(times[max(n_ok - 1, 0)]), prev_state[:3], "diverged")
+            finite = np.all(np.isfinite(states), axis=1)
+            r = np.linalg.norm(states[:, :3], axis=1)
+            close = np.flatnonzero(finite & (r < r_bound))
+            inside = np.zeros(n_ok, bool)
+            if len(close):
+                inside[close] = points_inside(triangles, states[close, :3])
+            hit = np.flatnonzero(inside)
+            bad = np.flatnonzero(~finite | (r > escape_radius))
+            first_bad = bad[0] if len(bad) else n_ok
+            if len(hit) and hit[0] < first_bad:
+                k = hit[0]
+                return _refine_contact(
+                    ta, times[k - 1], states[k - 1], times[k], triangles, contact_tol
+                )
+            if len(bad):
+                reason = "escaped" if np.isfinite(r[first_bad]) else "diverged"
+                return Touchdown(False, float(times[first_bad]), states[first_bad, :3], reason)
+            if res[0] != hy.taylor_outcome.time_limit or n_ok < len(times):
+                return Touchdown(False, float(times[n_ok - 1]), states[n_ok - 1, :3], "diverged")
+            prev_t, prev_state = times[-1], states[-1].copy()
+            if prev_t >= t_end:
+                break
+    return Touchdown(False, float(prev_t), prev_state[:3], "timed out")
+
+
+def _refine_contact(ta, t_out, state_out, t_in, triangles, contact_tol) -> Touchdown:
+    """Bisect the contact time between an outside and an inside sample."""
+    lo, hi = float(t_out), float(t_in)
+    lo_state = np.array(state_out, dtype=float)
+    while hi - lo > contact_tol:
+        mid = 0.5 * (lo + hi)
+        ta.time = lo
+        ta.state[:] = lo_state
+        ta.propagate_until(mid)
+        if points_inside(triangles, ta.state[None, :3].copy())[0]:
+            hi = mid
+        else:
+            lo, lo_state = mid, ta.state.copy()
+    return Touchdown(True, hi, lo_state[:3].copy(), "")

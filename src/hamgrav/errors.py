@@ -1,0 +1,42 @@
+"""Errors a user can act on.
+
+Every exception hamgrav raises because of the user's input, data or environment derives from
+:class:`HamgravError`; its message names the problem, the file or option, and the fix. The
+command line reports these in one line and exits with status 2. Anything else (a plain
+``ValueError``, ``KeyError``...) is a bug in hamgrav and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "HamgravError",
+    "InputError",
+    "BodyDataError",
+    "DatasetError",
+    "SimulationError",
+    "PropagationError",
+]
+
+
+class HamgravError(Exception):
+    """Base of the errors caused by input, data or environment (not by a bug)."""
+
+
+class InputError(HamgravError, ValueError):
+    """An argument, option or configuration value is invalid."""
+
+
+class BodyDataError(HamgravError, RuntimeError):
+    """A body file is missing or malformed."""
+
+
+class DatasetError(HamgravError, RuntimeError):
+    """A dataset file is missing, truncated, corrupted or of another kind."""
+
+
+class SimulationError(HamgravError, RuntimeError):
+    """A campaign cannot be simulated as asked (e.g. every draw of an orbit impacts)."""
+
+
+class PropagationError(HamgravError, RuntimeError):
+    """A trajectory could not be propagated under a model (it diverged or became stiff)."""

@@ -1,0 +1,99 @@
+"""Pieces every campaign experiment shares: its campaign options, the simulated campaign,
+fits through the estimator, evaluation sets and plain-data artefacts for figures."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..bodies.evaluation import evaluation_sets
+from ..bodies.interiors import INTERIORS, Truth
+from ..core.arcs import Arcs
+from ..core.fields import field_errors
+from ..errors import InputError
+from ..fit.estimator import GravityEstimator
+from ..sim.campaign import Campaign, build_campaign_truth
+from ..sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
+from .config import ExperimentConfig, option
+
+__all__ = ["CampaignConfig", "simulate", "fit", "errors_of", "sets_for", "campaign_artefacts"]
+
+
+@dataclass(frozen=True)
+class CampaignConfig(ExperimentConfig):
+    """The tracking campaign of an experiment (the paper's 112-arc campaign by default)."""
+
+    body: str = option("itokawa", "Body: a catalogue name or 'synthetic'.")
+    interior: str = option("head-tail", f"Truth interior: {' | '.join(INTERIORS)}.")
+    n_mascons: int = option(600, "Truth mascons.")
+    orbits: int = option(16, "Orbits, on a radius x inclination grid.")
+    radius_rb: tuple[float, ...] = option((1.2, 2.0), "Orbit radius range [R_B].")
+    inclination_deg: tuple[float, ...] = option((10.0, 80.0), "Inclination range [deg].")
+    arcs_per_orbit: int = option(7, "Arcs per orbit (40 samples at 14 s each).")
+    window_spin_periods: float = option(1.0, "Tracking window of each orbit [spin periods].")
+    min_radius_rb: float = option(0.0, "Redraw orbits dipping below this radius [R_B] (0: off).")
+
+    def check(self) -> None:
+        if self.interior not in INTERIORS:
+            raise InputError(f"interior must be one of {', '.join(INTERIORS)}")
+        for name in ("radius_rb", "inclination_deg"):
+            if len(getattr(self, name)) != 2:
+                raise InputError(f"{name} must be a range of two numbers (low, high)")
+
+    def campaign(self, seed: int) -> Campaign:
+        """The campaign this config describes, seeded."""
+        families = orbit_grid(self.orbits, tuple(self.radius_rb), tuple(self.inclination_deg))
+        tracking = TrackingConfig(
+            arcs_per_orbit=self.arcs_per_orbit,
+            window_spin_periods=self.window_spin_periods,
+            min_radius_rb=self.min_radius_rb,
+        )
+        return Campaign(self.body, self.interior, self.n_mascons, seed, tuple(families), tracking)
+
+
+def simulate(config: CampaignConfig, seed: int, say) -> tuple[Truth, Arcs]:
+    """The truth and its simulated arcs for ``config`` at ``seed``."""
+    start = time.perf_counter()
+    campaign = config.campaign(seed)
+    truth = build_campaign_truth(campaign)
+    arcs = simulate_orbits(
+        truth, list(campaign.families), campaign.tracking, seed=seed, config=campaign.as_dict()
+    )
+    say(f"truth and {arcs.n_arcs} arcs in {time.perf_counter() - start:.1f} s")
+    return truth, arcs
+
+
+def fit(name: str, arcs: Arcs, truth: Truth, seed: int, say, **settings) -> GravityEstimator:
+    """Fit one row of an experiment through the estimator (the one fit path)."""
+    estimator = GravityEstimator(body=truth.body, seed=seed, **settings).fit(arcs)
+    r = estimator.result_
+    say(f"{name}: {r.outcome.value}, {r.iterations} iterations in {r.wall_s:.1f} s")
+    return estimator
+
+
+def errors_of(model, params, truth: Truth, sets: dict) -> dict[str, float]:
+    """Field errors of ``model`` at ``params`` on the named sets, rounded to 4 digits."""
+    errs = field_errors(model, params, truth.mascons, sets)
+    return {k: round(v, 4) for k, v in errs.items()}
+
+
+def sets_for(truth: Truth, shells_rb, altitudes_m, seed: int) -> dict:
+    """Evaluation sets of the truth's body (see :func:`hamgrav.bodies.evaluation_sets`)."""
+    return evaluation_sets(truth.body, tuple(shells_rb), tuple(altitudes_m), seed=seed)
+
+
+def campaign_artefacts(truth: Truth, arcs: Arcs) -> dict:
+    """Plain arrays for the campaign figure: mesh [m], Brillouin radius [m], arcs [m]."""
+    length = truth.body.units.length_m
+    return {
+        "vertices_m": np.asarray(truth.body.mesh.vertices) * length,
+        "faces": np.asarray(truth.body.mesh.faces),
+        "brillouin_radius_m": truth.body.brillouin_radius_m,
+        "arc_positions_m": arcs.true_states[..., :3] * length,
+        "arc_trajectory": np.asarray(arcs.trajectory),
+        "arcs": arcs,
+        "interior": truth.interior,
+        "body": truth.body.name,
+    }

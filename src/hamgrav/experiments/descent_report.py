@@ -1,0 +1,106 @@
+"""The README of the descent experiment: tables of the aggregate next to the paper's numbers,
+checks of the paper's statements on every repetition, and the known set-up differences."""
+
+from __future__ import annotations
+
+import math
+
+from .runner import format_range
+
+__all__ = ["descent_readme"]
+
+
+def _median(rep: dict, name: str) -> float:
+    v = rep["models"].get(name, {}).get("median_m")
+    return math.inf if v is None else v
+
+
+def descent_readme(report: dict, paper: dict) -> list[str]:
+    """README lines of a descent report (see :mod:`hamgrav.experiments.descent`)."""
+    reps = report["repetitions"]
+    agg = report["aggregate"]
+    cfg = report["config"]
+    first = reps[0]
+    lines = [
+        f"{first['n_arcs']} orbital arcs of {cfg['body']} ({cfg['interior']} interior; "
+        f"{cfg['orbits']} orbits x {cfg['arcs_per_orbit']} arcs of 40 samples at 14 s, "
+        f"sigma_r = 5 cm); {cfg['descents']} descents released at 1.3 R_B with 1-3 cm/s "
+        "inward manoeuvres, propagated to contact with the mesh.",
+        "",
+        "Miss distance [m] between the contact point predicted by each model and the true one,",
+        "over the descents that land under the model; the paper's numbers in brackets:",
+        "",
+        "| planning model | median [m] | 90th pct [m] | worst [m] | landed |",
+        "|---|---|---|---|---|",
+    ]
+    for name, stats in agg["models"].items():
+        cells = [format_range(stats.get(k)) for k in ("median_m", "p90_m", "worst_m")]
+        cells.append(format_range(stats.get("landed"), "{:.0f}") + f"/{stats['total']['max']:.0f}")
+        if name in paper:
+            cells = [f"{c} ({p})" for c, p in zip(cells, paper[name], strict=True)]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    sets = list(next(iter(agg["field_error"].values())))
+    lines += [
+        "",
+        "`network` is the paper's protocol (Adam, unweighted cost, 12 % hold-out);",
+        "`network-lm` is the same network fitted by Levenberg-Marquardt on the same arcs with",
+        "the same hold-out. Relative field error (1 = no correction) on shells (r, in R_B) and",
+        f"on the {cfg['altitude_m']:g} m surface-following set:",
+        "",
+        "| model | " + " | ".join(sets) + " |",
+        "|---|" + "---|" * len(sets),
+    ]
+    for name, errs in agg["field_error"].items():
+        lines.append(
+            f"| {name} | " + " | ".join(format_range(errs[k], "{:.3f}") for k in sets) + " |"
+        )
+    lines += ["", "Fit outcomes (first repetition):", ""]
+    for name, f in first["fits"].items():
+        lines.append(
+            f"- {name}: {f['solver']}, {f['outcome']}, {f['iterations']} iterations, "
+            f"{f['wall_s']:.1f} s ({f['message']})"
+        )
+    lines += ["", "## Against the paper", ""] + _checks(reps, cfg)
+    lines += ["", "Wall time per repetition [s]: " + ", ".join(f"{r['wall_s']:.0f}" for r in reps)]
+    return lines
+
+
+def _checks(reps: list[dict], cfg: dict) -> list[str]:
+    n = len(reps)
+    sh_rows = [k for k in reps[0]["models"] if k.startswith("sh")]
+    best = sum(
+        all(_median(r, "network") <= _median(r, k) for k in [*sh_rows, "point-mass"]) for r in reps
+    )
+    landed = sum(r["models"]["network"]["landed"] == r["models"]["network"]["total"] for r in reps)
+    grows = sum(
+        all(
+            b > a
+            for a, b in zip(
+                [r["field_error"][k][f"h{cfg['altitude_m']:g}m"] for k in sh_rows],
+                [r["field_error"][k][f"h{cfg['altitude_m']:g}m"] for k in sh_rows][1:],
+                strict=False,
+            )
+        )
+        for r in reps
+    )
+    interior = cfg["interior"]
+    if cfg["body"] == "itokawa" and interior == "head-tail":
+        interior = (
+            "the head lobe of the shared reference file twice as dense (that file itself uses "
+            "a 1.63 contrast)"
+        )
+    return [
+        f"- The network (paper's protocol) has the lowest median miss of the paper's rows in "
+        f"{best} of {n} repetition(s) (paper: yes, one run).",
+        f"- It lands every descent in {landed} of {n}.",
+        f"- The SH field error {cfg['altitude_m']:g} m above the surface grows with degree in "
+        f"{grows} of {n} (paper: degree 8 several times worse than no correction).",
+        "",
+        "Known differences of set-up (the paper does not fix them): the truth is "
+        f"{cfg['n_mascons']} k-means mascons of the shape (about 0.2 % of the perturbing "
+        f"potential from the exact polyhedron at 1.05 R_B), interior: {interior}; orbits start "
+        "circular with random node and phase and are tracked over one spin period; descents "
+        "start at rest in inertial space plus the inward manoeuvre; Adam runs "
+        f"{cfg['adam_steps']} steps with peak learning rate {cfg['learning_rate']:g} and a "
+        "cosine schedule. The paper quotes one run; seeds change orbits, noise and descents.",
+    ]

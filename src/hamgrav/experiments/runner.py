@@ -1,0 +1,325 @@
+"""The experiment runner: seeds, repetitions, dispatch over Dask, timing, progress, and the
+results folder (results.json, README.md next to the paper's numbers, figures).
+
+An experiment is an :class:`Experiment`: a frozen config type and a pure function
+``run(config, seed) -> RunOutput`` of plain data. Repetitions (seeds s, s+1, ...) are work
+units mapped over a ``dask.distributed`` client: in-process by default (one worker thread in
+this process, sharing its compile cache), a LocalCluster of ``workers`` processes, or an
+existing scheduler. A work unit is :func:`run_unit`, a function of plain data only (experiment
+name, config dict, seed, body-data folder), so every mode gives the same numbers.
+
+results.json: ``{"experiment", "config", "seeds", "command", "repetitions": [single-run
+objects], "aggregate": {key: {model: {statistic: {"median", "min", "max", "n"}}}}, ...}``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import sys
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..bodies.catalogue import bodies_dir
+from ..errors import InputError
+from ..report.writer import save_figure, write_json, write_text
+from .config import ExperimentConfig
+
+__all__ = [
+    "Experiment",
+    "RunOutput",
+    "register",
+    "get_experiment",
+    "experiment_names",
+    "run_unit",
+    "run_experiment",
+    "aggregate",
+    "dask_client",
+    "format_range",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class RunOutput:
+    """One repetition's output: ``result`` (plain JSON-able data, goes into results.json) and
+    ``artefacts`` (arrays and plain records for figures and files, not written as JSON)."""
+
+    result: dict
+    artefacts: dict = field(default_factory=dict)
+
+
+class Experiment(ABC):
+    """An experiment of the paper: a config type and a pure function of (config, seed)."""
+
+    #: command name (``hamgrav experiment NAME``)
+    name: str = ""
+    #: one-line description
+    title: str = ""
+    #: the frozen config dataclass
+    config_type: type[ExperimentConfig] = ExperimentConfig
+    #: keys of the single-run result holding {model: {statistic: number}}, aggregated
+    aggregate_keys: tuple[str, ...] = ()
+    #: default output folder
+    default_output: str = ""
+
+    def default_config(self) -> ExperimentConfig:
+        """The config with every default."""
+        return self.config_type()
+
+    @abstractmethod
+    def run(self, config: ExperimentConfig, seed: int, say: Callable[[str], None]) -> RunOutput:
+        """One repetition; ``say(text)`` reports progress (rounded figures, with units)."""
+
+    @abstractmethod
+    def readme(self, report: dict) -> list[str]:
+        """The README body (after the generic header) from results.json's content."""
+
+    def figures(self, report: dict, artefacts: dict) -> dict:
+        """Figures (file name -> matplotlib Figure) from the report and the first
+        repetition's artefacts."""
+        return {}
+
+
+_REGISTRY: dict[str, Experiment] = {}
+
+
+def register(experiment: Experiment) -> Experiment:
+    """Add ``experiment`` to the registry (by its name)."""
+    _REGISTRY[experiment.name] = experiment
+    return experiment
+
+
+def get_experiment(name: str) -> Experiment:
+    """The registered experiment called ``name``."""
+    from . import descent, solvers  # noqa: F401 (registration)
+
+    if name not in _REGISTRY:
+        raise InputError(f"unknown experiment {name!r}; known: {', '.join(experiment_names())}")
+    return _REGISTRY[name]
+
+
+def experiment_names() -> list[str]:
+    """Names of the registered experiments."""
+    from . import descent, solvers  # noqa: F401 (registration)
+
+    return sorted(_REGISTRY)
+
+
+def _stderr_say(prefix: str) -> Callable[[str], None]:
+    def say(text: str) -> None:
+        print(f"{prefix}{text}", file=sys.stderr, flush=True)
+
+    return say
+
+
+def run_unit(
+    experiment_name: str,
+    config: dict,
+    seed: int,
+    bodies_folder: str | None = None,
+    verbose: bool = False,
+    prefix: str = "",
+) -> RunOutput:
+    """One repetition as a pure function of plain data (the Dask work unit)."""
+    import os
+
+    if bodies_folder:
+        os.environ["HAMGRAV_BODIES"] = bodies_folder
+    experiment = get_experiment(experiment_name)
+    cfg = experiment.config_type.from_dict(config)
+    say = _stderr_say(prefix) if verbose else (lambda text: None)
+    start = time.perf_counter()
+    out = experiment.run(cfg, int(seed), say)
+    result = {**out.result, "seed": int(seed), "wall_s": round(time.perf_counter() - start, 1)}
+    return RunOutput(result, out.artefacts)
+
+
+@contextlib.contextmanager
+def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
+    """A ``dask.distributed`` client: an existing ``scheduler`` address, a LocalCluster of
+    ``workers`` single-threaded processes (workers >= 1), or in-process (one worker thread)."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+        return
+    if workers and workers > 0:
+        with (
+            LocalCluster(
+                n_workers=int(workers),
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            ) as cluster,
+            Client(cluster) as client,
+        ):
+            yield client
+        return
+    with Client(
+        processes=False,
+        n_workers=1,
+        threads_per_worker=1,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+    ) as client:
+        yield client
+
+
+def aggregate(repetitions: list[dict], keys: tuple[str, ...]) -> dict:
+    """Per key, model and statistic: median, min, max and count over the repetitions of every
+    numeric (non-boolean) value of ``result[key][model][statistic]``; None values are left out
+    of the statistics (``n`` counts the others)."""
+    out: dict = {}
+    for key in keys:
+        table: dict = {}
+        for rep in repetitions:
+            for model, stats in rep.get(key, {}).items():
+                for stat, value in stats.items():
+                    if isinstance(value, bool) or not isinstance(value, int | float | type(None)):
+                        continue
+                    table.setdefault(model, {}).setdefault(stat, []).append(value)
+        out[key] = {
+            model: {stat: _summary(values) for stat, values in stats.items()}
+            for model, stats in table.items()
+        }
+    return out
+
+
+def _summary(values: list) -> dict:
+    present = [float(v) for v in values if v is not None and math.isfinite(v)]
+    if not present:
+        return {"median": None, "min": None, "max": None, "n": 0}
+    return {
+        "median": float(np.median(present)),
+        "min": float(np.min(present)),
+        "max": float(np.max(present)),
+        "n": len(present),
+    }
+
+
+def format_range(summary: dict | None, fmt: str = "{:.1f}") -> str:
+    """``median`` alone for one value, else ``median (min-max)``; "-" when missing."""
+    if not summary or summary.get("median") is None:
+        return "-"
+    med = fmt.format(summary["median"])
+    if summary["n"] <= 1 or summary["min"] == summary["max"]:
+        return med
+    return f"{med} ({fmt.format(summary['min'])}-{fmt.format(summary['max'])})"
+
+
+def run_experiment(
+    experiment: Experiment | str,
+    config: ExperimentConfig | None = None,
+    *,
+    seed: int = 0,
+    repeat: int = 1,
+    output: str | Path | None = None,
+    workers: int = 0,
+    scheduler: str | None = None,
+    command: str = "",
+    say: Callable[[str], None] | None = None,
+    verbose: bool = True,
+) -> tuple[dict, list[RunOutput]]:
+    """Run ``repeat`` repetitions (seeds ``seed``, ``seed + 1``, ...) of ``experiment`` and,
+    with ``output``, write results.json, README.md and the figures there.
+
+    Returns the report (results.json's content) and the repetitions' outputs in seed order.
+    """
+    if isinstance(experiment, str):
+        experiment = get_experiment(experiment)
+    config = config or experiment.default_config()
+    if repeat < 1:
+        raise InputError(f"--repeat must be at least 1, got {repeat}")
+    say = say or _stderr_say("")
+    seeds = [int(seed) + i for i in range(repeat)]
+    folder = str(bodies_dir())
+    start = time.perf_counter()
+    outputs: dict[int, RunOutput] = {}
+    mode = (
+        f"scheduler {scheduler}"
+        if scheduler
+        else (f"LocalCluster of {workers} workers" if workers else "in-process")
+    )
+    say(f"{experiment.name}: {repeat} repetition(s), seeds {seeds[0]}-{seeds[-1]}, {mode}")
+    with dask_client(workers, scheduler) as client:
+        from dask.distributed import as_completed
+
+        futures = {
+            client.submit(
+                run_unit,
+                experiment.name,
+                config.as_dict(),
+                s,
+                folder,
+                verbose,
+                f"[seed {s}] " if repeat > 1 else "",
+                pure=False,
+            ): s
+            for s in seeds
+        }
+        for future in as_completed(futures):
+            s = futures[future]
+            outputs[s] = future.result()
+            say(
+                f"repetition {len(outputs)}/{repeat} done (seed {s}, "
+                f"{outputs[s].result['wall_s']:.0f} s)"
+            )
+    ordered = [outputs[s] for s in seeds]
+    repetitions = [o.result for o in ordered]
+    report = {
+        "experiment": experiment.name,
+        "title": experiment.title,
+        "hamgrav_version": __version__,
+        "command": command,
+        "config": config.as_dict(),
+        "seeds": seeds,
+        "dispatch": mode,
+        "wall_s": round(time.perf_counter() - start, 1),
+        "repetitions": repetitions,
+        "aggregate": aggregate(repetitions, experiment.aggregate_keys),
+    }
+    if output is not None:
+        write_report(experiment, report, ordered[0].artefacts, Path(output))
+    return report, ordered
+
+
+def write_report(experiment: Experiment, report: dict, artefacts: dict, folder: Path) -> None:
+    """results.json, README.md and the figures of ``report`` into ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_json(folder / "results.json", report)
+    figures = experiment.figures(report, artefacts)
+    for name, fig in figures.items():
+        save_figure(fig, folder / name)
+    n = len(report["repetitions"])
+    header = [
+        f"# {experiment.title}",
+        "",
+        "Regenerate with:",
+        "",
+        f"    {report['command']}",
+        "",
+        f"{n} repetition(s), seeds {report['seeds'][0]}-{report['seeds'][-1]} "
+        f"({report['dispatch']}), {report['wall_s']:.0f} s in all. "
+        + (
+            "Tables give the median over the repetitions and, in brackets, min-max."
+            if n > 1
+            else "One repetition: the tables give its values."
+        ),
+        "",
+    ]
+    lines = header + experiment.readme(report)
+    if figures:
+        lines += ["", "Figures: " + ", ".join(f"`{name}`" for name in figures) + "."]
+    config = report["config"]
+    lines += ["", "## Configuration", "", "| option | value |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in config.items()]
+    write_text(folder / "README.md", lines)

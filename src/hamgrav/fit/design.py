@@ -1,0 +1,321 @@
+"""D-optimal choice of the next orbits to track, from the current model (no measurements).
+
+For a candidate orbit c, its arcs are *predicted*: the candidate is started circular as in
+:func:`hamgrav.sim.tracking.simulate_orbits` and propagated under the current model at theta_k
+(never the truth), and the arcs are cut from the window exactly as there. Its information
+matrix is
+
+    Lambda_c = sum over the predicted samples of Phi^T Phi = A^T A,
+
+with Phi = d state / d theta of each arc anchored at its first sample (A = -Phi is the design
+matrix of :class:`hamgrav.core.problem.ArcProblem`; with per-component sigmas, the weighted
+A). The D-optimal score of c given the information accumulated so far, L_acc, is
+
+    Delta(c) = logdet(L_acc + Lambda_c + eps I) - logdet(L_acc + eps I),
+    eps = max(1e-8, 1e-6 tr(L_acc) / n_p),
+
+and the greedy design picks the argmax from a pool, adds its Lambda to L_acc and repeats.
+Log-determinants are taken by Cholesky factorisation.
+
+Everything is in canonical units (mu = omega = 1): times in spin periods / 2 pi, lengths in the
+synchronous radius, Lambda in (canonical state units / parameter units)^2.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict
+from functools import partial
+
+import numpy as np
+from scipy.linalg import cho_factor
+
+from ..core.arcs import Arcs
+from ..core.mascons import MasconSet
+from ..core.model import DEFAULT_FIT_TOLERANCE, Model
+from ..core.problem import ArcProblem
+from ..core.propagation import propagate_batch
+from ..errors import InputError
+from ..sim.tracking import OrbitFamily, TrackingConfig, arc_start_times, draw_orbit_start
+from ..units import CanonicalUnits
+
+__all__ = [
+    "predicted_arcs",
+    "information_matrix",
+    "trajectory_informations",
+    "regularisation",
+    "logdet_regularised",
+    "d_optimal_gain",
+    "greedy_d_optimal",
+    "random_order_logdet",
+    "select_orbits",
+]
+
+
+# ---------------------------------------------------------------------------- predicted arcs
+def _draw_candidates(rng, families, tracking, window, arc_offsets, r_b):
+    """Per family, in the random-number order of ``simulate_orbits`` (arc starts, then node
+    and argument of latitude of its first draw): sample times (k, m) and the initial state."""
+    out = []
+    for family in families:
+        starts = arc_start_times(rng, tracking.arcs_per_orbit, window, arc_offsets[-1])
+        raan, arg_lat, state0 = draw_orbit_start(rng, family, r_b)
+        out.append((starts[:, None] + arc_offsets[None, :], raan, arg_lat, state0))
+    return out
+
+
+def predicted_arcs(
+    model: Model,
+    theta,
+    families: list[OrbitFamily],
+    tracking: TrackingConfig,
+    *,
+    brillouin_radius: float,
+    body_name: str,
+    gm_m3_s2: float,
+    spin_period_s: float,
+    seed: int = 0,
+    trajectory_values=None,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+) -> Arcs:
+    """Noiseless arcs of one candidate orbit per family, predicted under ``model`` at ``theta``.
+
+    Each candidate starts circular at ``radius_rb * brillouin_radius`` (canonical) with a
+    seeded node and argument of latitude, and its arcs are placed in the window as in
+    :func:`~hamgrav.tracking.simulate_orbits` (same random-number order: with the same seed
+    and families, the initial states and sample times equal those of a simulation whose
+    orbits needed no redraw). There is no shape here, so there are no redraws: a candidate
+    whose prediction diverges (non-finite) or escapes (r > ``tracking.escape_factor`` times
+    its initial radius at a sample) is dropped; its family index is listed in
+    ``trajectory_info["dropped"]`` and ``trajectory_info["candidate"]`` maps each kept
+    trajectory to its family index.
+
+    Args:
+        model: the current model; ``theta[:model.n_learn]`` are its learnable parameters.
+        families: candidate orbit families (radius [R_B], inclination [deg]).
+        tracking: arcs per orbit, samples per arc, cadence [s], window [spin periods].
+        brillouin_radius: canonical Brillouin radius of the body.
+        body_name, gm_m3_s2 [m^3/s^2], spin_period_s [s]: the body and its canonical units.
+        seed: seed of the arc placement and of the nodes / arguments of latitude.
+        trajectory_values: values of the model's per-trajectory parameters used for every
+            candidate (default zeros: e.g. SRP switched off in the prediction).
+        tol: integrator tolerance.
+
+    Returns:
+        An :class:`Arcs` with the predictions in both ``states`` and ``true_states``, zero
+        noise levels, a placeholder ``truth`` and interior ``"predicted"``.
+    """
+    if not families:
+        raise InputError("the candidate pool needs at least one orbit family")
+    theta = np.asarray(theta, dtype=float)
+    if trajectory_values is None:
+        trajectory_values = np.zeros(model.n_trajectory_params)
+    if theta.size < model.n_learn:
+        raise ValueError(f"theta must have at least {model.n_learn} entries, got {theta.size}")
+    units = CanonicalUnits(gm_m3_s2, spin_period_s)
+    rng = np.random.default_rng(seed)
+    arc_offsets = float(units.to_time(tracking.cadence_s)) * np.arange(tracking.samples_per_arc)
+    window = 2.0 * math.pi * tracking.window_spin_periods
+    draws = _draw_candidates(rng, families, tracking, window, arc_offsets, brillouin_radius)
+
+    n_cand, n_arc, n_m = len(families), tracking.arcs_per_orbit, tracking.samples_per_arc
+    pars = np.zeros((model.n_system_params, n_cand))
+    pars[: model.n_learn] = theta[: model.n_learn, None]
+    if model.n_trajectory_params:
+        pars[model.n_learn :] = np.asarray(trajectory_values, dtype=float).reshape(-1, 1)
+    # each grid starts at the candidate's start time, 0: drop that column afterwards
+    grids = np.stack([np.concatenate([[0.0], d[0].ravel()]) for d in draws])
+    run = propagate_batch(model, np.stack([d[3] for d in draws]), grids, pars, tol=tol)
+    predicted = run.states[:, 1:]  # NaN where the prediction failed
+
+    radius0 = np.array([f.radius_rb * brillouin_radius for f in families])
+    r = np.linalg.norm(predicted[..., :3], axis=-1)
+    finite = np.all(np.isfinite(predicted), axis=(1, 2))
+    keep = finite & np.all(
+        np.where(finite[:, None], r, 0.0) <= tracking.escape_factor * radius0[:, None], axis=1
+    )
+    kept = np.flatnonzero(keep)
+
+    info = {
+        "radius_rb": np.array([families[k].radius_rb for k in kept]),
+        "inclination_deg": np.array([families[k].inclination_deg for k in kept]),
+        "raan_deg": np.array([math.degrees(draws[k][1]) for k in kept]),
+        "arg_lat_deg": np.array([math.degrees(draws[k][2]) for k in kept]),
+        "initial_state": np.array([draws[k][3] for k in kept]).reshape(-1, 6),
+        "min_radius_rb": r[kept].min(axis=1) / brillouin_radius,
+        "candidate": kept,
+        "dropped": np.flatnonzero(~keep),  # family indices (not one entry per trajectory)
+    }
+    states = predicted[kept].reshape(-1, n_m, 6)
+    return Arcs(
+        times=np.array([draws[k][0] for k in kept]).reshape(-1, n_m),
+        states=states,
+        true_states=states.copy(),
+        trajectory=np.repeat(np.arange(len(kept), dtype=np.int64), n_arc),
+        trajectory_kind=tuple("orbit" for _ in kept),
+        trajectory_info=info,
+        body_name=body_name,
+        gm_m3_s2=gm_m3_s2,
+        spin_period_s=spin_period_s,
+        body_origin_m=(0.0, 0.0, 0.0),
+        sigma_r_m=0.0,
+        sigma_v_m_s=0.0,
+        truth=MasconSet(np.zeros((1, 3)), np.ones(1)),
+        interior="predicted",
+        interior_parameters={},
+        seed=seed,
+        config={"design": "predicted", "model": model.describe(), "tracking": asdict(tracking)},
+    )
+
+
+# ---------------------------------------------------------------------------- information
+def _problem(problem_or_model, arcs) -> ArcProblem:
+    if isinstance(problem_or_model, ArcProblem):
+        if arcs is not None and arcs is not problem_or_model.arcs:
+            raise ValueError(
+                "give either an ArcProblem or a model with arcs, not a problem with other arcs"
+            )
+        return problem_or_model
+    if arcs is None:
+        raise InputError("a model needs arcs")
+    return ArcProblem(problem_or_model, arcs)
+
+
+def information_matrix(problem_or_model, theta, arcs: Arcs | None = None, arc_indices=None):
+    """Lambda = A^T A (n_p, n_p) of the (selected) arcs at ``theta``: the sum over samples of
+    Phi^T Phi. Give an :class:`ArcProblem` (its arcs, weights and SRP settings are used) or a
+    :class:`Model` and ``arcs``. The arcs' states only anchor the propagations."""
+    problem = _problem(problem_or_model, arcs)
+    return problem.normal_equations(np.asarray(theta, dtype=float), arc_indices)[2]
+
+
+def _information_of(problem: ArcProblem, theta, arc_indices) -> np.ndarray:
+    return information_matrix(problem, theta, arc_indices=arc_indices)
+
+
+def trajectory_informations(problem_or_model, theta, arcs: Arcs | None = None, *, mapper=map):
+    """One information matrix per trajectory (orbit) of the arcs, in trajectory order.
+
+    Each is an independent work unit of plain data; ``mapper`` (builtin ``map`` by default, or
+    a Dask client's) runs them."""
+    problem = _problem(problem_or_model, arcs)
+    traj = problem.arcs.trajectory
+    groups = [np.flatnonzero(traj == k) for k in range(problem.arcs.n_trajectories)]
+    theta = np.asarray(theta, dtype=float)
+    return list(mapper(partial(_information_of, problem, theta), groups))
+
+
+# ---------------------------------------------------------------------------- D-optimality
+def regularisation(L_acc) -> float:
+    """eps = max(1e-8, 1e-6 tr(L_acc) / n_p)."""
+    L_acc = np.asarray(L_acc, dtype=float)
+    return max(1e-8, 1e-6 * float(np.trace(L_acc)) / L_acc.shape[0])
+
+
+def _logdet(m: np.ndarray) -> float:
+    c, _ = cho_factor(m, lower=True)
+    return 2.0 * float(np.sum(np.log(np.diag(c))))
+
+
+def logdet_regularised(L) -> float:
+    """logdet(L + eps(L) I), by Cholesky."""
+    L = np.asarray(L, dtype=float)
+    return _logdet(L + regularisation(L) * np.eye(L.shape[0]))
+
+
+def d_optimal_gain(L_acc, L_c) -> float:
+    """Delta = logdet(L_acc + L_c + eps I) - logdet(L_acc + eps I), eps from L_acc."""
+    L_acc = np.asarray(L_acc, dtype=float)
+    reg = regularisation(L_acc) * np.eye(L_acc.shape[0])
+    return _logdet(L_acc + np.asarray(L_c, dtype=float) + reg) - _logdet(L_acc + reg)
+
+
+def _start(infos, n_pick, L_start):
+    if not infos:
+        raise ValueError("the candidate pool is empty")
+    if not 0 <= n_pick <= len(infos):
+        raise ValueError(f"cannot pick {n_pick} of {len(infos)} candidates")
+    n = np.shape(infos[0])[0]
+    return np.zeros((n, n)) if L_start is None else np.array(L_start, dtype=float)
+
+
+def greedy_d_optimal(infos, n_pick: int, L_start=None):
+    """Greedy D-optimal picks (without replacement) from candidate information matrices.
+
+    Returns ``(picked, logdets, gains)``: the candidate indices in pick order, logdet(L_acc +
+    eps(L_acc) I) after each pick, and the gain Delta of each pick when it was made.
+    """
+    L_acc = _start(infos, n_pick, L_start)
+    left = list(range(len(infos)))
+    picked, logdets, gains = [], [], []
+    for _ in range(n_pick):
+        scores = [d_optimal_gain(L_acc, infos[c]) for c in left]
+        best = left.pop(int(np.argmax(scores)))
+        gains.append(float(max(scores)))
+        picked.append(best)
+        L_acc = L_acc + infos[best]
+        logdets.append(logdet_regularised(L_acc))
+    return picked, np.asarray(logdets), np.asarray(gains)
+
+
+def random_order_logdet(infos, n_pick: int, seed: int = 0, L_start=None):
+    """``(picked, logdets)`` for a seeded random pick order, logdets as in the greedy."""
+    L_acc = _start(infos, n_pick, L_start)
+    picked = [int(k) for k in np.random.default_rng(seed).permutation(len(infos))[:n_pick]]
+    logdets = []
+    for k in picked:
+        L_acc = L_acc + infos[k]
+        logdets.append(logdet_regularised(L_acc))
+    return picked, np.asarray(logdets)
+
+
+def select_orbits(
+    fitted,
+    families: list[OrbitFamily],
+    tracking: TrackingConfig,
+    *,
+    brillouin_radius: float,
+    picks: int,
+    seed: int = 0,
+    mapper=map,
+) -> list[dict]:
+    """Greedy D-optimal choice of ``picks`` orbits from candidate ``families`` at a fitted
+    model (a :class:`~hamgrav.fit.fitted.FittedModel`): predicted arcs and sensitivities
+    under the model, no measurements, no truth. One row per pick: candidate index, radius
+    [R_B], inclination [deg], gain, log det after the pick, and log det of a seeded random
+    order after as many picks."""
+    candidates = predicted_arcs(
+        fitted.model,
+        fitted.params,
+        list(families),
+        tracking,
+        brillouin_radius=brillouin_radius,
+        body_name=fitted.body_name,
+        gm_m3_s2=fitted.gm_m3_s2,
+        spin_period_s=fitted.spin_period_s,
+        seed=seed,
+    )
+    if candidates.n_trajectories == 0:
+        raise InputError("every candidate orbit diverged or escaped under the model")
+    infos = trajectory_informations(
+        fitted.model, fitted.params[: fitted.model.n_learn], candidates, mapper=mapper
+    )
+    n_pick = min(picks, len(infos))
+    chosen, logdets, gains = greedy_d_optimal(infos, n_pick)
+    _, random_logdets = random_order_logdet(infos, n_pick, seed=seed)
+    family_of = candidates.trajectory_info["candidate"]
+    rows = []
+    for k, (c, ld, g) in enumerate(zip(chosen, logdets, gains, strict=True)):
+        fam = families[int(family_of[c])]
+        rows.append(
+            {
+                "pick": k + 1,
+                "candidate": int(family_of[c]),
+                "radius_rb": fam.radius_rb,
+                "inclination_deg": fam.inclination_deg,
+                "gain": float(g),
+                "logdet": float(ld),
+                "random_order_logdet": float(random_logdets[k]),
+            }
+        )
+    return rows

@@ -1,0 +1,339 @@
+"""The estimator: the one fit path of hamgrav (CLI, experiments and tests all go through it).
+
+``GravityEstimator(...).fit(arcs)`` in the scikit-learn style: hyperparameters are stored as
+given; ``fit`` builds the model (known part + learnable term + per-trajectory terms), decides
+the validation split, the solver, the initial point (scratch or warm start) and the
+per-trajectory parameters, runs the solver, and sets the learned attributes ``model_``,
+``params_``, ``result_``, ``train_``, ``validation_`` and ``fitted_`` (a
+:class:`~hamgrav.fit.fitted.FittedModel`). Calling ``fit`` again overwrites them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from ..bodies.catalogue import Body, load_body
+from ..bodies.shape_prior import DEFAULT_PRIOR_MASCONS, centred_shape_prior
+from ..core.arcs import Arcs
+from ..core.model import Model, evaluate_field
+from ..core.problem import ArcProblem
+from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics, Term
+from ..errors import InputError
+from ..units import CanonicalUnits
+from .adam import Adam
+from .base import Outcome, Solver, SolveResult
+from .fitted import FittedModel
+from .kaula import scan_kaula
+from .lm import LevenbergMarquardt
+
+__all__ = [
+    "GravityEstimator",
+    "TERMS",
+    "body_for_arcs",
+    "body_in_frame",
+    "noise_sigmas",
+    "truth_shell_metric",
+    "validation_split",
+]
+
+#: Learnable terms the estimator builds: a network, spherical harmonics, or none (the known
+#: part alone: point mass, or the shape prior).
+TERMS = ("network", "sh", "none")
+
+
+def body_in_frame(body_name: str, origin_m, folder=None) -> Body:
+    """A catalogue or synthetic body with its frame origin at ``origin_m`` [m, mesh frame]."""
+    body = load_body(body_name, folder=folder)
+    return replace(body, origin_m=tuple(float(v) for v in origin_m))
+
+
+def body_for_arcs(arcs: Arcs, folder=None) -> Body:
+    """The arcs' body, in the arcs' frame (the truth's centre of mass)."""
+    return body_in_frame(arcs.body_name, arcs.body_origin_m, folder)
+
+
+def noise_sigmas(arcs: Arcs) -> np.ndarray:
+    """Per-component noise (6,) of canonical (q, p) samples: sigma_r for positions and
+    sigma_v for momenta, in canonical units (the position noise's contribution to p through
+    omega x q is of the same order as sigma_v and is neglected here)."""
+    units = CanonicalUnits(arcs.gm_m3_s2, arcs.spin_period_s)
+    sr = float(units.to_length(arcs.sigma_r_m))
+    sv = float(units.to_velocity(arcs.sigma_v_m_s))
+    return np.array([sr, sr, sr, sv, sv, sv])
+
+
+def truth_shell_metric(arcs: Arcs, body: Body, shell_rb: float = 1.05):
+    """The paper's Kaula-scan score: callable(params, model) -> the relative field error on
+    the ``shell_rb`` R_B shell against the truth recorded with the arcs (reads the truth)."""
+    from ..bodies.evaluation import evaluation_sets
+    from ..core.fields import field_errors
+
+    sets = evaluation_sets(body, (shell_rb,), ())
+
+    def metric(params, model):
+        return next(iter(field_errors(model, params, arcs.truth, sets).values()))
+
+    return metric
+
+
+def validation_split(n_arcs: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded split of arc indices 0..n_arcs-1 into sorted (training, validation) indices,
+    ``round(fraction * n_arcs)`` of them held out."""
+    if not 0.0 <= fraction < 0.5:
+        raise InputError(f"the validation fraction must lie in [0, 0.5), got {fraction}")
+    order = np.random.default_rng(seed).permutation(n_arcs)
+    n_val = int(round(fraction * n_arcs))
+    return np.sort(order[n_val:]), np.sort(order[:n_val])
+
+
+class GravityEstimator:
+    """Fit a gravity correction to tracking arcs.
+
+    Args:
+        term: "network", "sh" or "none" (no learnable term: the known part alone).
+        hidden: hidden layer sizes of the network.
+        degree: SH degree (reference radius = the body's Brillouin radius).
+        prior: None (central term only) or "shape" (the constant-density shape prior, centred
+            on its own centre of mass, in the known part; the term then learns the residual).
+        prior_mascons: mascons of the shape prior.
+        solver: "lm", "adam", a :class:`~hamgrav.fit.base.Solver` instance, or None (Adam for
+            the network, LM for SH).
+        weighted: divide residual components by their noise sigmas (:func:`noise_sigmas`).
+        kaula: None, a Kaula weight alpha, or "scan" (needs ``kaula_metric``).
+        kaula_metric: callable(params, model) -> score for the scan (lower is better).
+        validation_fraction: arcs held out for validation; None: 0.12 for the network, 0 for SH.
+        per_trajectory: per-trajectory terms (e.g. SRP) added to the model.
+        estimate_trajectory_params: estimate every trajectory's per-trajectory parameters
+            together with the learnable ones; otherwise ``trajectory_values`` are data.
+        trajectory_values: (n_trajectories, n) known per-trajectory values.
+        lm_max_iter, adam_steps, learning_rate, batch_size: settings of solvers given by name.
+        seed: seeds the initialisation, the validation split and the mini-batches.
+        body: the body in the arcs' frame (default: loaded from the catalogue by name).
+        mapper: map function for independent work (Kaula scan); builtin ``map`` by default.
+    """
+
+    def __init__(
+        self,
+        term: str = "network",
+        *,
+        hidden: Sequence[int] = (24, 24),
+        degree: int = 4,
+        prior: str | None = None,
+        prior_mascons: int = DEFAULT_PRIOR_MASCONS,
+        solver: str | Solver | None = None,
+        weighted: bool = False,
+        kaula: float | str | None = None,
+        kaula_metric: Callable | None = None,
+        validation_fraction: float | None = None,
+        per_trajectory: Sequence[Term] = (),
+        estimate_trajectory_params: bool = False,
+        trajectory_values: np.ndarray | None = None,
+        lm_max_iter: int = 50,
+        adam_steps: int = 1500,
+        learning_rate: float = 1e-2,
+        batch_size: int = 24,
+        seed: int = 0,
+        body: Body | None = None,
+        mapper: Callable = map,
+    ):
+        self.term = term
+        self.hidden = hidden
+        self.degree = degree
+        self.prior = prior
+        self.prior_mascons = prior_mascons
+        self.solver = solver
+        self.weighted = weighted
+        self.kaula = kaula
+        self.kaula_metric = kaula_metric
+        self.validation_fraction = validation_fraction
+        self.per_trajectory = per_trajectory
+        self.estimate_trajectory_params = estimate_trajectory_params
+        self.trajectory_values = trajectory_values
+        self.lm_max_iter = lm_max_iter
+        self.adam_steps = adam_steps
+        self.learning_rate = learning_rate
+        self.batch_size = batch_size
+        self.seed = seed
+        self.body = body
+        self.mapper = mapper
+
+    # ----------------------------------------------------------------- decisions, one place
+    def build_model(self, arcs: Arcs) -> tuple[Model, dict]:
+        """The model to fit to ``arcs`` and a plain-data description of its known part."""
+        if self.term not in TERMS:
+            raise InputError(f"term must be one of {', '.join(TERMS)}, got {self.term!r}")
+        body = self.body if self.body is not None else body_for_arcs(arcs)
+        if self.prior is None:
+            known, prior_info = (PointMass(),), {"kind": "point-mass"}
+        elif self.prior == "shape":
+            mascons, report = centred_shape_prior(body, self.prior_mascons, seed=self.seed)
+            known, prior_info = (MasconTerm(mascons, "shape prior"),), {"kind": "shape", **report}
+        else:
+            raise InputError(f"prior must be None or 'shape', got {self.prior!r}")
+        learnable: Term | None = None
+        if self.term == "network":
+            learnable = NeuralPotential(tuple(int(h) for h in self.hidden))
+        elif self.term == "sh":
+            learnable = SphericalHarmonics(int(self.degree), body.brillouin_radius)
+        return Model(known, learnable, tuple(self.per_trajectory)), prior_info
+
+    @property
+    def solver_name(self) -> str:
+        """The solver in use: as given, else Adam for the network and LM otherwise."""
+        if isinstance(self.solver, Solver):
+            return self.solver.name
+        return self.solver or ("adam" if self.term == "network" else "lm")
+
+    def make_solver(self) -> Solver:
+        """The solver object this estimator runs."""
+        if isinstance(self.solver, Solver):
+            return self.solver
+        name = self.solver_name
+        if name == "lm":
+            alpha = self.kaula if isinstance(self.kaula, int | float) else 0.0
+            return LevenbergMarquardt(max_iter=self.lm_max_iter, kaula_alpha=float(alpha))
+        if name == "adam":
+            return Adam(
+                learning_rate=self.learning_rate,
+                steps=self.adam_steps,
+                batch_size=self.batch_size,
+                seed=self.seed,
+            )
+        raise InputError(f"solver must be 'lm' or 'adam', got {name!r}")
+
+    @property
+    def holdout_fraction(self) -> float:
+        """The validation fraction in use (default 0.12 for the network, 0 otherwise)."""
+        if self.validation_fraction is not None:
+            return float(self.validation_fraction)
+        return 0.12 if self.term == "network" else 0.0
+
+    def split(self, arcs: Arcs) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The (training, validation) arc indices of a fit on ``arcs`` (None, None: all arcs
+        train, no validation)."""
+        if self.holdout_fraction <= 0:
+            return None, None
+        return validation_split(arcs.n_arcs, self.holdout_fraction, self.seed)
+
+    def initial_params(self, model: Model, arcs: Arcs) -> np.ndarray:
+        """Scratch starting point: the learnable term's initialisation (seeded), then each
+        trajectory's per-trajectory defaults when they are estimated."""
+        theta = model.learnable.initial_params(self.seed) if model.learnable else np.zeros(0)
+        if self.estimate_trajectory_params:
+            one = np.concatenate([t.initial_trajectory_params() for t in model.per_trajectory])
+            theta = np.concatenate([theta, np.tile(one, arcs.n_trajectories)])
+        return theta
+
+    # ----------------------------------------------------------------- fitting
+    def fit(
+        self,
+        arcs: Arcs,
+        *,
+        init: np.ndarray | None = None,
+        validation: np.ndarray | None = None,
+        callback=None,
+        checkpoint=None,
+        resume: dict | None = None,
+    ) -> GravityEstimator:
+        """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
+        stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`)."""
+        model, prior_info = self.build_model(arcs)
+        problem = ArcProblem(
+            model,
+            arcs,
+            estimate_trajectory_params=self.estimate_trajectory_params,
+            trajectory_values=self.trajectory_values,
+            sigmas=noise_sigmas(arcs) if self.weighted else None,
+        )
+        if init is None:
+            init = self.initial_params(model, arcs)
+        init = np.asarray(init, dtype=float)
+        if init.shape != (problem.n_params,):
+            raise InputError(
+                f"initial parameters have {init.size} entries; this model needs "
+                f"{problem.n_params} (is the warm-start model of another structure?)"
+            )
+        if validation is not None:
+            validation = np.sort(np.asarray(validation, dtype=int))
+            train = np.setdiff1d(np.arange(arcs.n_arcs), validation)
+        else:
+            train, validation = self.split(arcs)
+        solver = self.make_solver()
+        kaula_scores = None
+        if problem.n_params == 0:
+            result = _nothing_to_fit(problem)
+        elif self.kaula == "scan":
+            if self.kaula_metric is None:
+                raise InputError("kaula='scan' needs kaula_metric(params, model)")
+            if not isinstance(solver, LevenbergMarquardt):
+                raise InputError("the Kaula scan needs the LM solver")
+            _, result, kaula_scores = scan_kaula(
+                problem,
+                lambda c: self.kaula_metric(c, model),
+                solver=solver,
+                theta0=init,
+                mapper=self.mapper,
+            )
+        else:
+            result = solver.solve(
+                problem,
+                init,
+                train=train,
+                validation=validation,
+                callback=callback,
+                checkpoint=checkpoint,
+                resume=resume,
+            )
+        self.model_ = model
+        self.params_ = result.params
+        self.result_ = result
+        self.train_ = train
+        self.validation_ = validation
+        solver_info = {
+            **result.solver,
+            **result.summary(),
+            "weighted": self.weighted,
+            "validation_fraction": self.holdout_fraction,
+            "n_validation": 0 if validation is None else int(len(validation)),
+            "seed": self.seed,
+            "n_arcs": arcs.n_arcs,
+            "n_params": problem.n_params,
+        }
+        if kaula_scores is not None:
+            solver_info["kaula_scan"] = kaula_scores
+            solver_info["kaula_alpha"] = result.solver["kaula_alpha"]
+        self.fitted_ = FittedModel(
+            model=model,
+            params=result.params,
+            body_name=arcs.body_name,
+            gm_m3_s2=arcs.gm_m3_s2,
+            spin_period_s=arcs.spin_period_s,
+            body_origin_m=tuple(arcs.body_origin_m),
+            estimate_trajectory_params=self.estimate_trajectory_params,
+            prior=prior_info,
+            solver=solver_info,
+            history={k: [float(x) for x in v] for k, v in result.history.items()},
+        )
+        return self
+
+    def field(self, points: np.ndarray, which: str = "learnable"):
+        """Potential (n,) and acceleration (n, 3) [canonical] of the fitted model's
+        ``which`` part ("learnable", "known" or "total") at canonical ``points`` (n, 3)."""
+        return evaluate_field(self.model_, self.params_, points, which)
+
+
+def _nothing_to_fit(problem: ArcProblem) -> SolveResult:
+    cost = problem.cost(np.zeros(0))
+    return SolveResult(
+        params=np.zeros(0),
+        cost=cost,
+        initial_cost=cost,
+        iterations=0,
+        best_iteration=0,
+        outcome=Outcome.CONVERGED,
+        message="no parameters to fit: the known part alone",
+        solver={"name": "none"},
+    )

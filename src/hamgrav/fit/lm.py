@@ -1,0 +1,153 @@
+"""Levenberg-Marquardt with optional Kaula regularisation (the paper's schedule)."""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from ..core.problem import ArcProblem
+from ..core.terms import SphericalHarmonics, sh_index
+from ..errors import PropagationError
+from .base import Outcome, Solver, SolveResult
+
+__all__ = ["LevenbergMarquardt", "kaula_diagonal"]
+
+
+def kaula_diagonal(problem: ArcProblem) -> np.ndarray:
+    """K = diag(l^4) on the SH block of the parameters, 0 elsewhere (Kaula's rule)."""
+    k = np.zeros(problem.n_params)
+    term = problem.model.learnable
+    if isinstance(term, SphericalHarmonics):
+        k[: term.n_params] = [float(l) ** 4 for _, l, _ in sh_index(term.degree)]
+    return k
+
+
+def _solve_spd(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    try:
+        with warnings.catch_warnings():
+            # near-singular normal matrices are expected (weakly observed directions); the
+            # damping and the accept/reject test handle them
+            warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+            return scipy.linalg.solve(matrix, rhs, assume_a="pos")
+    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return np.linalg.lstsq(matrix, rhs, rcond=None)[0]
+
+
+@dataclass(frozen=True)
+class LevenbergMarquardt(Solver):
+    """Gauss-Newton with Levenberg-Marquardt damping.
+
+    (A^T A + lambda diag(A^T A) + alpha K) dc = -(A^T r + alpha K c); a step is accepted when
+    the (regularised) cost drops (lambda /= ``lambda_down``, floored at ``lambda_floor``), else
+    rejected (lambda *= ``lambda_up``). Stops at a relative cost change below ``rtol``, when
+    lambda exceeds ``lambda_ceiling`` or after ``max_iter`` iterations. ``kaula_alpha`` = alpha
+    (0: no regularisation).
+    """
+
+    lambda0: float = 1e-6
+    lambda_floor: float = 1e-14
+    lambda_down: float = 3.0
+    lambda_up: float = 10.0
+    lambda_ceiling: float = 1e12
+    rtol: float = 1e-6
+    max_iter: int = 50
+    kaula_alpha: float = 0.0
+
+    name = "levenberg-marquardt"
+
+    def solve(
+        self,
+        problem: ArcProblem,
+        theta0: np.ndarray | None = None,
+        *,
+        train: np.ndarray | None = None,
+        validation: np.ndarray | None = None,
+        callback: Callable[[int, dict], None] | None = None,
+        checkpoint: Callable[[np.ndarray, dict], None] | None = None,
+        resume: dict | None = None,
+    ) -> SolveResult:
+        start = time.perf_counter()
+        theta = np.zeros(problem.n_params) if theta0 is None else np.array(theta0, dtype=float)
+        kaula = self.kaula_alpha * kaula_diagonal(problem)
+
+        def reg_cost(c, th):
+            return c + 0.5 * float(th @ (kaula * th))
+
+        try:
+            cost, atr, ata = problem.normal_equations(theta, train)
+        except PropagationError as exc:
+            raise PropagationError(f"the initial parameters do not propagate: {exc}") from None
+        cost = reg_cost(cost, theta)
+        initial_cost = cost
+        lam = self.lambda0 if resume is None else float(resume["lambda"])
+        history = {"cost": [cost], "lambda": [lam], "accepted": [True], "time_s": [0.0]}
+        best = (np.inf, theta.copy(), 0)
+        has_val = validation is not None and len(validation) > 0
+        if has_val:
+            history["validation"] = [problem.cost(theta, validation)]
+            best = (history["validation"][0], theta.copy(), 0)
+        outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
+        for it in range(1, self.max_iter + 1):
+            lhs = ata + lam * np.diag(np.diag(ata)) + np.diag(kaula)
+            step = _solve_spd(lhs, -(atr + kaula * theta))
+            trial = theta + step
+            try:
+                trial_cost = reg_cost(problem.cost(trial, train), trial)
+                accepted = trial_cost < cost
+                if accepted:
+                    _, trial_atr, trial_ata = problem.normal_equations(trial, train)
+            except PropagationError:
+                trial_cost, accepted = math.inf, False
+            if accepted:
+                n_accepted += 1
+                rel = (cost - trial_cost) / max(cost, 1e-300)
+                theta, cost = trial, trial_cost
+                lam = max(lam / self.lambda_down, self.lambda_floor)
+            else:
+                lam *= self.lambda_up
+            history["cost"].append(cost)
+            history["lambda"].append(lam)
+            history["accepted"].append(accepted)
+            history["time_s"].append(time.perf_counter() - start)
+            if has_val:
+                val = problem.cost(theta, validation) if accepted else history["validation"][-1]
+                history["validation"].append(val)
+                if val < best[0]:
+                    best = (val, theta.copy(), it)
+            if callback is not None:
+                callback(it, {k: v[-1] for k, v in history.items()})
+            if accepted and rel < self.rtol:
+                outcome = Outcome.CONVERGED
+                message = f"relative cost change {rel:.2e} < {self.rtol:g}"
+                break
+            if lam > self.lambda_ceiling:
+                outcome = Outcome.DAMPING_SATURATED
+                message = "damping saturated: no further decrease possible"
+                break
+            if accepted:
+                atr, ata = trial_atr, trial_ata
+                if checkpoint is not None:
+                    checkpoint(theta, {"solver": self.name, "iteration": it, "lambda": lam})
+        best_it = best[2] if has_val else it
+        if has_val:
+            theta = best[1]
+        if n_accepted == 0 or (has_val and best_it == 0):
+            outcome, message = Outcome.NO_IMPROVEMENT, f"no improvement ({message})"
+        return SolveResult(
+            params=theta,
+            cost=cost,
+            initial_cost=initial_cost,
+            iterations=it,
+            best_iteration=best_it,
+            outcome=outcome,
+            message=message,
+            history=history,
+            wall_s=time.perf_counter() - start,
+            solver=self.describe(),
+        )

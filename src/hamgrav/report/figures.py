@@ -1,0 +1,117 @@
+"""Figures, built as plain matplotlib ``Figure`` objects from plain data (lengths in metres).
+
+No pyplot and no backend choice here: the figures work in scripts (saved by
+:func:`hamgrav.report.writer.save_figure`), in notebooks (display the returned figure) and on
+machines without a display.
+"""
+
+from __future__ import annotations
+
+import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+
+__all__ = ["campaign_figure", "miss_cdf_figure", "logdet_figure"]
+
+
+def campaign_figure(
+    vertices_m: np.ndarray,
+    faces: np.ndarray,
+    brillouin_radius_m: float,
+    arc_positions_m: np.ndarray,
+    arc_trajectory: np.ndarray,
+    *,
+    title: str = "",
+    paths_m=(),
+) -> Figure:
+    """The shape, the Brillouin sphere and tracked arcs (n, m, 3) [m] in the body frame, with
+    optional extra paths (e.g. descents): a 3-D view and the equatorial (x-y) projection with
+    the shape's z = 0 cross-section."""
+    import trimesh
+
+    fig = Figure(figsize=(11, 5))
+    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
+    ax3.plot_trisurf(
+        vertices_m[:, 0],
+        vertices_m[:, 1],
+        vertices_m[:, 2],
+        triangles=faces,
+        color="0.7",
+        linewidth=0,
+        alpha=0.6,
+    )
+    ax2 = fig.add_subplot(1, 2, 2)
+    mesh = trimesh.Trimesh(vertices_m, faces, process=False)
+    section = mesh.section(plane_origin=[0, 0, 0], plane_normal=[0, 0, 1])
+    if section is not None:
+        for line in section.discrete:
+            ax2.fill(line[:, 0], line[:, 1], color="0.6")
+    angle = np.linspace(0, 2 * np.pi, 200)
+    r_b = brillouin_radius_m
+    ax2.plot(r_b * np.cos(angle), r_b * np.sin(angle), "k--", lw=0.8, label="Brillouin sphere")
+    n_traj = int(np.max(arc_trajectory)) + 1 if len(arc_trajectory) else 1
+    colours = [tuple(c) for c in matplotlib.colormaps["viridis"](np.linspace(0, 1, n_traj))]
+    for q, k in zip(arc_positions_m, arc_trajectory, strict=True):
+        ax3.plot(q[:, 0], q[:, 1], q[:, 2], color=colours[int(k)], lw=1.5)
+        ax2.plot(q[:, 0], q[:, 1], color=colours[int(k)], lw=1.5)
+    for path in paths_m:
+        ax3.plot(path[:, 0], path[:, 1], path[:, 2], color="C3", lw=0.8)
+        ax2.plot(path[:, 0], path[:, 1], color="C3", lw=0.8)
+    lim = 2.2 * r_b
+    ax3.set_xlim(-lim, lim)
+    ax3.set_ylim(-lim, lim)
+    ax3.set_zlim(-lim, lim)
+    ax3.set_xlabel("x [m]")
+    ax3.set_ylabel("y [m]")
+    ax3.set_zlabel("z [m]")
+    ax2.set_aspect("equal")
+    ax2.set_xlabel("x [m]")
+    ax2.set_ylabel("y [m]")
+    ax2.legend(loc="upper right", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def miss_cdf_figure(misses_m: dict[str, list[float]], totals: dict[str, int], title: str) -> Figure:
+    """Fraction of descents within a miss distance [m], one step curve per model; ``totals``
+    are the descents that landed under the truth (the curves' denominators)."""
+    fig = Figure(figsize=(6.5, 4.5))
+    ax = fig.add_subplot()
+    for name, misses in misses_m.items():
+        misses = np.sort(misses)
+        frac = np.arange(1, len(misses) + 1) / max(totals[name], 1)
+        ax.step(
+            np.concatenate([[0.0], misses]),
+            np.concatenate([[0.0], frac]),
+            where="post",
+            label=f"{name} ({len(misses)}/{totals[name]})",
+            lw=2,
+        )
+    ax.axhline(0.5, color="k", ls=":", lw=1)
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_xlim(left=0.0)
+    ax.set_xlabel("miss distance [m]")
+    ax.set_ylabel("fraction of descents")
+    ax.set_ylim(0, 1.02)
+    ax.legend(fontsize=8)
+    ax.set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+def logdet_figure(greedy: list[float], randoms: list[list[float]]) -> Figure:
+    """log det of the accumulated information against orbits selected: greedy D-optimal and
+    random orders."""
+    fig = Figure(figsize=(6, 4))
+    ax = fig.add_subplot()
+    picks = np.arange(1, len(greedy) + 1)
+    for r in randoms:
+        ax.plot(picks, r, color="0.6", lw=1)
+    ax.plot(picks, greedy, color="C3", lw=2.5, label="D-optimal (greedy)")
+    ax.plot([], [], color="0.6", label="random orders")
+    ax.set_xlabel("orbits selected")
+    ax.set_ylabel("log det of accumulated information")
+    ax.legend()
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,1 @@
+"""Simulation: orbit families, tracking and noise, campaigns (TOML), descents."""

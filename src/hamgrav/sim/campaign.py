@@ -1,0 +1,151 @@
+"""Campaign descriptions (TOML) and their simulation into an ``Arcs`` dataset.
+
+Example::
+
+    body = "itokawa"          # a catalogue name or "synthetic"
+    interior = "head-tail"    # uniform | head-tail | void | anomalies
+    n_mascons = 600           # truth mascons
+    seed = 1
+
+    [orbits]                  # either a grid over ranges ...
+    count = 16
+    radius_rb = [1.2, 2.0]
+    inclination_deg = [10, 80]
+    # families = [[1.5, 30.0], [1.8, 60.0]]   # ... or explicit (radius R_B, inclination deg)
+
+    [tracking]                # all optional; physical units
+    arcs_per_orbit = 7
+    samples_per_arc = 40
+    cadence_s = 14.0
+    window_spin_periods = 1.0
+    sigma_r_m = 0.05
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from ..bodies.catalogue import load_body
+from ..bodies.interiors import DEFAULT_TRUTH_MASCONS, INTERIORS, Truth, build_truth
+from ..core.arcs import Arcs
+from ..errors import InputError
+from .tracking import OrbitFamily, TrackingConfig, orbit_grid, simulate_orbits
+
+__all__ = ["CampaignError", "Campaign", "load_campaign", "simulate_campaign"]
+
+
+class CampaignError(InputError):
+    """A campaign description is invalid; the message names the key and the fix."""
+
+
+_TOP_KEYS = {"body", "interior", "n_mascons", "seed", "orbits", "tracking"}
+_ORBIT_KEYS = {"count", "radius_rb", "inclination_deg", "families"}
+_TRACKING_KEYS = {f.name for f in fields(TrackingConfig)}
+
+
+@dataclass(frozen=True)
+class Campaign:
+    """A tracking campaign: body name, truth interior and mascon count, seed, orbit families
+    (radius [R_B], inclination [deg]) and tracking settings (physical units)."""
+
+    body: str
+    interior: str
+    n_mascons: int
+    seed: int
+    families: tuple[OrbitFamily, ...]
+    tracking: TrackingConfig
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "campaign") -> Campaign:
+        def fail(msg: str):
+            raise CampaignError(f"{source}: {msg}")
+
+        unknown = set(data) - _TOP_KEYS
+        if unknown:
+            fail(f"unknown key(s) {sorted(unknown)}; allowed: {sorted(_TOP_KEYS)}")
+        if "body" not in data:
+            fail("'body' is required (a catalogue name or 'synthetic')")
+        interior = data.get("interior", "uniform")
+        if interior not in INTERIORS:
+            fail(f"interior {interior!r} is not one of {', '.join(INTERIORS)}")
+        orbits = data.get("orbits")
+        if not isinstance(orbits, dict):
+            fail("an [orbits] table is required")
+        unknown = set(orbits) - _ORBIT_KEYS
+        if unknown:
+            fail(f"unknown key(s) in [orbits] {sorted(unknown)}; allowed: {sorted(_ORBIT_KEYS)}")
+        try:
+            if "families" in orbits:
+                families = [OrbitFamily(float(r), float(i)) for r, i in orbits["families"]]
+            else:
+                families = orbit_grid(
+                    int(orbits.get("count", 16)),
+                    tuple(map(float, orbits.get("radius_rb", (1.2, 2.0)))),
+                    tuple(map(float, orbits.get("inclination_deg", (10.0, 80.0)))),
+                )
+        except (TypeError, ValueError) as exc:
+            fail(f"bad [orbits] entry: {exc}")
+        tracking = data.get("tracking", {})
+        unknown = set(tracking) - _TRACKING_KEYS
+        if unknown:
+            fail(
+                f"unknown key(s) in [tracking] {sorted(unknown)}; allowed: {sorted(_TRACKING_KEYS)}"
+            )
+        try:
+            tracking_config = TrackingConfig(**tracking)
+            n_mascons = int(data.get("n_mascons", DEFAULT_TRUTH_MASCONS))
+            seed = int(data.get("seed", 0))
+        except (TypeError, ValueError) as exc:
+            fail(str(exc))
+        return cls(
+            body=str(data["body"]),
+            interior=interior,
+            n_mascons=n_mascons,
+            seed=seed,
+            families=tuple(families),
+            tracking=tracking_config,
+        )
+
+    def as_dict(self) -> dict:
+        """Plain data that :meth:`from_dict` reads back."""
+        return {
+            "body": self.body,
+            "interior": self.interior,
+            "n_mascons": self.n_mascons,
+            "seed": self.seed,
+            "orbits": {"families": [[f.radius_rb, f.inclination_deg] for f in self.families]},
+            "tracking": {f.name: getattr(self.tracking, f.name) for f in fields(TrackingConfig)},
+        }
+
+
+def load_campaign(path: str | Path) -> Campaign:
+    """Read a campaign TOML file (see the module docstring)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CampaignError(f"campaign file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CampaignError(f"{path}: not valid TOML ({exc})") from None
+    return Campaign.from_dict(data, source=str(path))
+
+
+def build_campaign_truth(campaign: Campaign) -> Truth:
+    """The campaign's truth interior, centred on its centre of mass."""
+    body = load_body(campaign.body)
+    return build_truth(body, campaign.interior, n_mascons=campaign.n_mascons, seed=campaign.seed)
+
+
+def simulate_campaign(campaign: Campaign, progress=None) -> Arcs:
+    """Build the truth and simulate the campaign's tracking."""
+    truth = build_campaign_truth(campaign)
+    return simulate_orbits(
+        truth,
+        list(campaign.families),
+        campaign.tracking,
+        seed=campaign.seed,
+        progress=progress,
+        config=campaign.as_dict(),
+    )

@@ -1,0 +1,152 @@
+"""Exact sensitivities against central finite differences (tests only), and the shared path."""
+
+import numpy as np
+import pytest
+
+from hamgrav.bodies.shape_prior import fit_shape_prior
+from hamgrav.core.model import Model, compiled_integrators
+from hamgrav.core.problem import ArcProblem
+from hamgrav.core.terms import (
+    MasconTerm,
+    NeuralPotential,
+    PointMass,
+    SolarRadiationPressure,
+    SphericalHarmonics,
+    sh_coefficients_of_mascons,
+)
+
+TOL = 1e-15  # tight, so that finite differences are limited by their step, not the integrator
+
+
+def _check_fd(problem, theta, columns, rel=1e-6):
+    jac = problem.predict(theta, sensitivities=True).jacobian
+    for k in columns:
+        h = 1e-5 * max(1.0, abs(theta[k]))
+        plus, minus = theta.copy(), theta.copy()
+        plus[k] += h
+        minus[k] -= h
+        fd = (problem.predict(plus).states - problem.predict(minus).states) / (2 * h)
+        scale = np.abs(jac[..., k]).max()
+        assert scale > 0, f"column {k} has no sensitivity"
+        assert np.abs(fd - jac[..., k]).max() <= rel * scale, k
+
+
+@pytest.fixture(scope="module")
+def arcs(small_arcs):
+    return small_arcs.subset(np.arange(0, 9, 2))  # 5 arcs from three orbits
+
+
+def test_network_sensitivities(arcs):
+    nn = NeuralPotential((16, 16))
+    problem = ArcProblem(Model((PointMass(),), nn), arcs, tol=TOL)
+    theta = nn.initial_params(3)
+    theta[nn.n_weights :] = 0.05  # non-zero biases exercise every path
+    _check_fd(problem, theta, [0, 17, 100, 300, nn.last_bias_index()])
+
+
+def test_last_bias_has_gradient(arcs):
+    nn = NeuralPotential((16, 16))
+    problem = ArcProblem(Model((PointMass(),), nn), arcs)
+    _, grad = problem.gradient(nn.initial_params(0))
+    assert abs(grad[nn.last_bias_index()]) > 1e-6 * np.abs(grad).max()
+
+
+def test_sh_sensitivities(arcs, synthetic_truth):
+    radius = synthetic_truth.body.brillouin_radius
+    sh = SphericalHarmonics(4, radius)
+    problem = ArcProblem(Model((PointMass(),), sh), arcs, tol=TOL)
+    theta = sh_coefficients_of_mascons(synthetic_truth.mascons, 4, radius)
+    _check_fd(problem, theta, range(sh.n_params))
+
+
+def test_shape_prior_plus_network_sensitivities(arcs, synthetic_truth):
+    prior, report = fit_shape_prior(synthetic_truth.body, 40, samples=20_000)
+    assert report["perturbing_error_r1.05"] < 0.05
+    nn = NeuralPotential((16,))
+    problem = ArcProblem(Model((MasconTerm(prior),), nn), arcs, tol=TOL)
+    _check_fd(problem, nn.initial_params(1), [0, 30, nn.n_params - 1])
+
+
+def test_srp_coefficient_sensitivities(arcs, synthetic_truth):
+    units = synthetic_truth.body.units
+    srp = SolarRadiationPressure(SolarRadiationPressure.pressure_for(units), 20.0)
+    nn = NeuralPotential((16,))
+    model = Model((PointMass(),), nn, (srp,))
+    problem = ArcProblem(model, arcs, estimate_trajectory_params=True, tol=TOL)
+    theta = np.concatenate([nn.initial_params(2), [0.3, 0.8, 1.5]])
+    assert problem.n_params == nn.n_params + 3
+    jac = problem.predict(theta, sensitivities=True).jacobian
+    # a trajectory's coefficient moves only its own arcs
+    for k in range(arcs.n_arcs):
+        others = [t for t in range(3) if t != arcs.trajectory[k]]
+        assert np.all(jac[k, ..., nn.n_params + np.array(others)] == 0.0)
+    _check_fd(problem, theta, [0, nn.n_params, nn.n_params + 1, nn.n_params + 2])
+
+
+def test_anchor_and_noiseless_truth(small_arcs, synthetic_truth):
+    """The truth mascons as a known term reproduce the noiseless arcs: residuals are the noise."""
+    from dataclasses import replace
+
+    clean = replace(small_arcs, states=small_arcs.true_states)
+    problem = ArcProblem(Model((MasconTerm(synthetic_truth.mascons),)), clean)
+    pred = problem.predict(np.zeros(0))
+    assert np.allclose(pred.states, small_arcs.true_states, atol=1e-10)
+
+
+def test_normal_equations_agree_with_design(arcs):
+    sh = SphericalHarmonics(3, 0.7)
+    problem = ArcProblem(Model((PointMass(),), sh), arcs)
+    theta = np.full(sh.n_params, 1e-3)
+    r, a = problem.design(theta)
+    cost, atr, ata = problem.normal_equations(theta, chunk=2)
+    assert cost == pytest.approx(0.5 * r @ r, rel=1e-12)
+    assert np.allclose(atr, a.T @ r, rtol=1e-12, atol=1e-20)
+    assert np.allclose(ata, a.T @ a, rtol=1e-12, atol=1e-20)
+    assert problem.gradient(theta)[1] == pytest.approx(atr, rel=1e-12)
+
+
+def test_compiled_once_per_structure():
+    m1 = Model((PointMass(),), SphericalHarmonics(3, 0.7))
+    m2 = Model((PointMass(),), SphericalHarmonics(3, 0.7))
+    assert compiled_integrators(m1, variational=True) is compiled_integrators(m2, variational=True)
+    assert compiled_integrators(m1, variational=True) is not compiled_integrators(
+        Model((PointMass(),), SphericalHarmonics(3, 0.8)), variational=True
+    )
+
+
+def test_fit_compiles_each_structure_once(arcs):
+    """Repeated predictions, gradients and normal equations never recompile."""
+    from hamgrav.core.model import cache_info
+
+    model = Model((PointMass(),), SphericalHarmonics(2, 0.71))
+    problem = ArcProblem(model, arcs)
+    theta = np.zeros(model.n_learn)
+    problem.normal_equations(theta)
+    problem.cost(theta)
+    before = cache_info()
+    for _ in range(3):
+        problem.normal_equations(theta + 1e-4)
+        problem.cost(theta)
+        ArcProblem(model, arcs).gradient(theta)
+    assert cache_info() == before
+
+
+def test_known_trajectory_values_are_data(arcs, synthetic_truth):
+    """Per-trajectory parameters that are not estimated are taken as given, per trajectory."""
+    units = synthetic_truth.body.units
+    srp = SolarRadiationPressure(SolarRadiationPressure.pressure_for(units), 20.0)
+    model = Model((PointMass(),), None, (srp,))
+    values = np.array([[0.0], [50.0], [0.0]])
+    moved = ArcProblem(model, arcs, trajectory_values=values).predict(np.zeros(0)).states
+    still = ArcProblem(model, arcs, trajectory_values=np.zeros((3, 1))).predict(np.zeros(0))
+    for k in range(arcs.n_arcs):
+        same = np.allclose(moved[k], still.states[k], rtol=0, atol=0)
+        assert same == (arcs.trajectory[k] != 1)
+    with pytest.raises(ValueError, match="trajectory_values of shape"):
+        ArcProblem(model, arcs)
+
+
+def test_bad_theta_named(arcs):
+    problem = ArcProblem(Model((PointMass(),), SphericalHarmonics(3, 0.7)), arcs)
+    with pytest.raises(ValueError, match="theta must have 12 entries"):
+        problem.predict(np.zeros(5))

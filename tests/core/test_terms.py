@@ -1,0 +1,141 @@
+import heyoka as hy
+import numpy as np
+import pytest
+
+from hamgrav.core.fields import perturbing_potential, relative_field_error, shell_points
+from hamgrav.core.mascons import MasconSet
+from hamgrav.core.model import Model, evaluate_field
+from hamgrav.core.terms import (
+    NeuralPotential,
+    PointMass,
+    SolarRadiationPressure,
+    SphericalHarmonics,
+    _normalised_legendre,
+    sh_coefficients_of_mascons,
+    sh_index,
+)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    rng = np.random.default_rng(0)
+    pos = rng.normal(size=(60, 3)) * [0.3, 0.15, 0.1]
+    mass = rng.uniform(0.5, 1.0, 60)
+    pos -= mass @ pos / mass.sum()
+    return MasconSet(pos, mass / mass.sum())
+
+
+def test_parameter_counts():
+    assert NeuralPotential((24, 24)).n_params == 721
+    assert NeuralPotential((16, 16)).n_params == 353
+    assert NeuralPotential((16,)).n_params == 3 * 16 + 16 + 16 + 1
+    assert [SphericalHarmonics(L, 1.0).n_params for L in (4, 8, 12, 16)] == [21, 77, 165, 285]
+    assert len(sh_index(8)) == 77
+
+
+def test_network_initialisation_seeded():
+    nn = NeuralPotential((16, 16))
+    a, b = nn.initial_params(1), nn.initial_params(1)
+    assert np.array_equal(a, b) and not np.array_equal(a, nn.initial_params(2))
+    assert np.all(a[nn.n_weights :] == 0.0)  # biases start at zero
+    # Glorot-uniform bound of the first layer: sqrt(6 / (3 + 16))
+    assert np.abs(a[:48]).max() <= np.sqrt(6 / 19)
+
+
+def test_network_layout_matches_numpy():
+    nn = NeuralPotential((5, 4), scale=0.1)
+    theta = np.random.default_rng(3).normal(size=nn.n_params)
+    model = Model((PointMass(),), nn)
+    pts = np.array([[1.1, -0.4, 0.3], [0.2, 0.9, -1.5]])
+    v, _ = evaluate_field(model, theta, pts)
+    # the documented layout, by hand
+    w1 = theta[:15].reshape(5, 3)
+    w2 = theta[15:35].reshape(4, 5)
+    w3 = theta[35:39].reshape(1, 4)
+    b1, b2, b3 = theta[39:44], theta[44:48], theta[48:49]
+    out = (w3 @ np.tanh(w2 @ np.tanh(w1 @ pts.T + b1[:, None]) + b2[:, None]) + b3[:, None])[0]
+    r = np.linalg.norm(pts, axis=1)
+    assert np.allclose(v, 0.1 * out / r**3, rtol=1e-13)
+
+
+def test_network_potential_decays_as_r_cubed():
+    nn = NeuralPotential((16, 16))
+    theta = nn.initial_params(5)
+    theta[-1] = 0.3
+    model = Model((PointMass(),), nn)
+    d = shell_points(1.0, 20, seed=1)
+    v1, _ = evaluate_field(model, theta, 1e6 * d)
+    v2, _ = evaluate_field(model, theta, 2e6 * d)
+    assert np.allclose(v2 / v1, 1 / 8, rtol=1e-3)
+
+
+def test_legendre_normalisation_matches_pyshtools():
+    import pyshtools
+
+    for t in (-0.9, -0.2, 0.0, 0.35, 0.99):
+        ours = _normalised_legendre(12, np.array([t]))[:, :, 0]
+        ref = pyshtools.legendre.PlmBar(12, t, csphase=1, cnorm=0)
+        for l in range(13):
+            for m in range(l + 1):
+                assert ours[l, m] == pytest.approx(ref[l * (l + 1) // 2 + m], rel=1e-12, abs=1e-14)
+
+
+def test_point_mass_coefficients_closed_form():
+    # a unit mass at (0, 0, a): C_l0 = (a/R)^l / sqrt(2l+1), all others 0
+    a, radius = 0.3, 0.5
+    c = sh_coefficients_of_mascons(MasconSet(np.array([[0.0, 0.0, a]]), np.ones(1)), 6, radius)
+    for k, (kind, l, m) in enumerate(sh_index(6)):
+        expected = (a / radius) ** l / np.sqrt(2 * l + 1) if (kind, m) == ("C", 0) else 0.0
+        assert c[k] == pytest.approx(expected, abs=1e-15)
+
+
+def test_exact_sh_reproduces_mascons_outside_brillouin(cluster):
+    radius = np.linalg.norm(cluster.positions, axis=1).max()
+    pts = shell_points(1.5 * radius, 300, seed=2)
+    truth = perturbing_potential(cluster, pts)
+    errors = []
+    for degree in (2, 4, 8, 12):
+        sh = SphericalHarmonics(degree, radius)
+        v, _ = evaluate_field(
+            Model((PointMass(),), sh), sh_coefficients_of_mascons(cluster, degree, radius), pts
+        )
+        errors.append(relative_field_error(v, truth))
+    assert all(b < a for a, b in zip(errors, errors[1:], strict=False))
+    assert errors[-1] < 0.01
+
+
+def test_field_acceleration_is_gradient(cluster):
+    sh = SphericalHarmonics(4, 0.5)
+    model = Model((PointMass(),), sh)
+    c = sh_coefficients_of_mascons(cluster, 4, 0.5)
+    p = np.array([[0.7, -0.2, 0.3]])
+    _, acc = evaluate_field(model, c, p)
+    h = 1e-6
+    fd = [
+        (evaluate_field(model, c, p + h * e)[0] - evaluate_field(model, c, p - h * e)[0])[0]
+        / (2 * h)
+        for e in np.eye(3)
+    ]
+    assert np.allclose(acc[0], fd, rtol=1e-7)
+
+
+def test_srp_pushes_away_from_sun():
+    srp = SolarRadiationPressure(pressure_canonical=2.0, sun_latitude_deg=0.0)
+    x, y, z = hy.make_vars("x", "y", "z")
+    v = srp.potential(0)
+    grad = [hy.diff(v, q) for q in (x, y, z)]
+    f = hy.cfunc(grad, vars=[x, y, z])
+    # at t = 0 the Sun is along +x: acceleration -k c x_hat
+    acc = f(np.array([0.3, 0.1, 0.2]), pars=np.array([0.5]), time=0.0)
+    assert np.allclose(acc, [-1.0, 0.0, 0.0])
+    # a quarter turn later the body frame has turned by pi/2: the Sun is along -y
+    acc = f(np.array([0.3, 0.1, 0.2]), pars=np.array([0.5]), time=np.pi / 2)
+    assert np.allclose(acc, [0.0, 1.0, 0.0], atol=1e-15)
+
+
+def test_srp_pressure_units():
+    from hamgrav.units import CanonicalUnits
+
+    units = CanonicalUnits(4.892, 15465.8)
+    k = SolarRadiationPressure.pressure_for(units, distance_au=1.0)
+    assert k * units.acceleration_m_s2 == pytest.approx(1361.0 / 299792458.0)

@@ -1,0 +1,90 @@
+"""Tiny configurations of each experiment, through the command line and the runner."""
+
+import json
+
+from typer.testing import CliRunner
+
+from hamgrav.cli import app
+
+runner = CliRunner()
+
+TINY_CAMPAIGN = [
+    "--body", "synthetic", "--n-mascons", "60", "--orbits", "2", "--arcs-per-orbit", "2",
+    "--window-spin-periods", "0.5", "--min-radius-rb", "1.0",
+]  # fmt: skip
+
+
+def test_descent_tiny(tmp_path):
+    out = tmp_path / "descent"
+    args = [
+        "experiment", "descent", *TINY_CAMPAIGN, "--descents", "3", "--sh-degrees", "2",
+        "--hidden", "4", "--adam-steps", "3", "--lm-iterations", "6", "--repeat", "2",
+        "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert data["command"].startswith("hamgrav experiment descent")
+    assert data["seeds"] == [0, 1] and len(data["repetitions"]) == 2
+    assert data["config"]["sh_degrees"] == [2] and data["config"]["lm_iterations"] == 6
+    for rep in data["repetitions"]:
+        assert set(rep["models"]) == {"point-mass", "sh2", "network", "network-lm"}
+        for stats in rep["models"].values():
+            assert stats["total"] == rep["truth_landed"] == 3
+        fits = rep["fits"]
+        # each row is fitted as its name says, and the fit moved from its start
+        assert fits["network"]["solver"] == "adam" and fits["network"]["iterations"] == 3
+        assert fits["network-lm"]["solver"] == "levenberg-marquardt"
+        assert fits["network-lm"]["cost"] < 0.9 * fits["network-lm"]["initial_cost"]
+        assert fits["sh2"]["solver"] == "levenberg-marquardt"
+        assert fits["point-mass"]["n_params"] == 0
+        # degree-2 SH learned the body's elongation: far better than no correction outside
+        assert rep["field_error"]["sh2"]["r1.5"] < 0.5
+    agg = data["aggregate"]["models"]["sh2"]["median_m"]
+    medians = [r["models"]["sh2"]["median_m"] for r in data["repetitions"]]
+    assert agg["min"] == min(medians) and agg["max"] == max(medians)
+    readme = (out / "README.md").read_text()
+    assert "| sh2 |" in readme and "2 repetition(s)" in readme
+    assert (out / "touchdown.png").stat().st_size > 1000
+
+
+def test_solvers_tiny(tmp_path):
+    out = tmp_path / "solvers"
+    args = [
+        "experiment", "solvers", *TINY_CAMPAIGN, "--orbits", "4", "--hidden", "4",
+        "--adam-steps", "4", "--lm-iterations", "3", "--stages", "2", "--picks", "3",
+        "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    rep = data["repetitions"][0]
+    assert set(rep["fits"]) == {
+        "sh4-lm",
+        "sh8-lm",
+        "network-adam-unweighted",
+        "network-lm-unweighted",
+        "network-adam-weighted",
+        "network-lm-weighted",
+    }
+    assert rep["fits"]["network-lm-weighted"]["weighted"] is True
+    assert rep["fits"]["network-adam-unweighted"]["solver"] == "adam"
+    stages = rep["continual"]["sh8-lm"]["warm"]
+    assert [s["n_arcs"] for s in stages] == [4, 8]
+    assert (
+        stages[1]["warm_started"] and not rep["continual"]["sh8-lm"]["scratch"][1]["warm_started"]
+    )
+    readme = (out / "README.md").read_text()
+    assert "| network-lm-weighted | levenberg-marquardt | weighted |" in readme
+    assert (out / "d_optimal.png").stat().st_size > 1000
+    d = rep["d_optimal"]
+    assert d["greedy_logdet"][0] >= max(r[0] for r in d["random_logdet"])
+
+
+def test_experiment_option_errors(tmp_path):
+    result = runner.invoke(
+        app, ["experiment", "descent", "--interior", "solid", "-o", str(tmp_path / "x")]
+    )
+    assert result.exit_code == 2
+    assert "interior must be one of" in result.output
+    assert not (tmp_path / "x").exists()

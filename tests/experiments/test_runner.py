@@ -1,0 +1,114 @@
+"""The experiment runner: configs, aggregation, repetitions in-process and on a LocalCluster."""
+
+import json
+
+import pytest
+
+from hamgrav.errors import InputError
+from hamgrav.experiments.descent import DescentExperimentConfig
+from hamgrav.experiments.runner import aggregate, format_range, run_experiment
+
+TINY = DescentExperimentConfig(
+    body="synthetic",
+    n_mascons=60,
+    orbits=2,
+    arcs_per_orbit=2,
+    window_spin_periods=0.5,
+    min_radius_rb=1.0,
+    descents=2,
+    sh_degrees=(2,),
+    hidden=(4,),
+    adam_steps=3,
+    lm_iterations=2,
+)
+
+
+def test_config_from_toml_and_options(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text('body = "synthetic"\norbits = 3\nhidden = [8, 8]\nradius_rb = [1.3, 1.9]\n')
+    config = DescentExperimentConfig.from_toml(path)
+    assert config.hidden == (8, 8) and config.orbits == 3 and config.radius_rb == (1.3, 1.9)
+    updated = config.updated({"hidden": "16,4", "descents": "5", "orbits": None})
+    assert updated.hidden == (16, 4) and updated.descents == 5 and updated.orbits == 3
+    assert DescentExperimentConfig.from_dict(updated.as_dict()) == updated
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"colour": 3}, "unknown key(s) ['colour']"),
+        ({"orbits": "many"}, "orbits must be an integer"),
+        ({"interior": "solid"}, "interior must be one of"),
+        ({"radius_rb": [1.2]}, "radius_rb must be a range of two numbers"),
+        ({"orbits": True}, "orbits must be an integer"),
+    ],
+)
+def test_bad_config_is_named(data, message):
+    with pytest.raises(InputError) as info:
+        DescentExperimentConfig.from_dict(data, source="my.toml")
+    assert message in str(info.value) and "my.toml" in str(info.value)
+
+
+def test_aggregate_median_min_max():
+    reps = [
+        {"models": {"a": {"median_m": 1.0, "landed": 30, "ok": True}}},
+        {"models": {"a": {"median_m": 3.0, "landed": 29, "ok": False}}},
+        {"models": {"a": {"median_m": None, "landed": 28, "ok": True}}},
+    ]
+    agg = aggregate(reps, ("models",))["models"]["a"]
+    assert agg["median_m"] == {"median": 2.0, "min": 1.0, "max": 3.0, "n": 2}
+    assert agg["landed"] == {"median": 29.0, "min": 28.0, "max": 30.0, "n": 3}
+    assert "ok" not in agg  # booleans are not statistics
+    assert format_range(agg["median_m"]) == "2.0 (1.0-3.0)"
+    assert format_range({"median": 2.0, "min": 2.0, "max": 2.0, "n": 1}) == "2.0"
+
+
+def _without_timing(value):
+    if isinstance(value, dict):
+        return {
+            k: _without_timing(v)
+            for k, v in value.items()
+            if not (k.endswith("wall_s") or k == "time_s")
+        }
+    if isinstance(value, list):
+        return [_without_timing(v) for v in value]
+    return value
+
+
+def test_local_cluster_gives_the_in_process_numbers(tmp_path, capsys):
+    """Two repetitions on a 2-worker LocalCluster equal the in-process run, number for number."""
+    local, _ = run_experiment("descent", TINY, seed=3, repeat=2, output=tmp_path / "a")
+    cluster, _ = run_experiment(
+        "descent", TINY, seed=3, repeat=2, workers=2, output=tmp_path / "b", verbose=False
+    )
+    assert cluster["dispatch"] == "LocalCluster of 2 workers"
+    assert [r["seed"] for r in cluster["repetitions"]] == [3, 4]
+    a, b = _without_timing(local["repetitions"]), _without_timing(cluster["repetitions"])
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+    assert local["aggregate"] == cluster["aggregate"]
+    # the two seeds are different draws
+    assert a[0]["models"]["point-mass"]["median_m"] != a[1]["models"]["point-mass"]["median_m"]
+    with capsys.disabled():
+        medians = [r["models"]["sh2"]["median_m"] for r in cluster["repetitions"]]
+        print(f"\nLocalCluster (2 workers) vs in-process: identical; sh2 median misses {medians}")
+
+
+def test_results_folder(tmp_path):
+    report, outputs = run_experiment("descent", TINY, seed=0, output=tmp_path, command="cmd")
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert data["command"] == "cmd" and data["config"] == TINY.as_dict()
+    assert len(data["repetitions"]) == 1 and data["seeds"] == [0]
+    rep = data["repetitions"][0]
+    for key in ("seed", "models", "field_error", "fits", "wall_s", "n_arcs", "truth_landed"):
+        assert key in rep
+    assert set(data["aggregate"]) == {"models", "field_error"}
+    readme = (tmp_path / "README.md").read_text()
+    assert "    cmd" in readme and "| point-mass |" in readme and "## Configuration" in readme
+    assert (tmp_path / "touchdown.png").stat().st_size > 1000
+    assert (tmp_path / "geometry.png").stat().st_size > 1000
+    assert outputs[0].artefacts["arcs"].n_arcs == rep["n_arcs"]
+
+
+def test_repeat_must_be_positive():
+    with pytest.raises(InputError, match="--repeat must be at least 1"):
+        run_experiment("descent", TINY, repeat=0)

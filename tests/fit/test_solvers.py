@@ -1,0 +1,138 @@
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from hamgrav.core.model import Model
+from hamgrav.core.problem import ArcProblem
+from hamgrav.core.terms import (
+    NeuralPotential,
+    PointMass,
+    SphericalHarmonics,
+    sh_coefficients_of_mascons,
+)
+from hamgrav.fit.adam import Adam
+from hamgrav.fit.continual import fit_continual
+from hamgrav.fit.estimator import GravityEstimator
+from hamgrav.fit.estimator import validation_split as split_validation
+from hamgrav.fit.kaula import scan_kaula
+from hamgrav.fit.lm import LevenbergMarquardt, kaula_diagonal
+
+
+@pytest.fixture(scope="module")
+def sh_world(small_arcs, synthetic_truth):
+    """A truth that is itself an SH field (degree 4), and arcs propagated under it."""
+    r_b = synthetic_truth.body.brillouin_radius
+    sh = SphericalHarmonics(4, r_b)
+    model = Model((PointMass(),), sh)
+    c_true = sh_coefficients_of_mascons(synthetic_truth.mascons, 4, r_b)
+    anchored = replace(small_arcs, states=small_arcs.true_states)
+    states = ArcProblem(model, anchored, tol=1e-15).predict(c_true).states
+    return model, c_true, replace(small_arcs, states=states, true_states=states)
+
+
+def test_lm_recovers_sh_truth_from_noiseless_arcs(sh_world):
+    model, c_true, arcs = sh_world
+    result = LevenbergMarquardt(rtol=1e-12, max_iter=20).solve(ArcProblem(model, arcs, tol=1e-15))
+    assert np.abs(result.params - c_true).max() < 1e-8 * np.abs(c_true).max()
+    assert result.history["accepted"][1]
+
+
+def test_lm_noisy_within_formal_covariance(sh_world):
+    model, c_true, arcs = sh_world
+    rng = np.random.default_rng(3)
+    sigma = np.array([1e-4] * 3 + [1e-5] * 3)
+    noisy = arcs.states.copy()
+    noisy[:, 1:] += rng.standard_normal(noisy[:, 1:].shape) * sigma  # anchors kept exact
+    problem = ArcProblem(model, replace(arcs, states=noisy), sigmas=sigma)
+    result = LevenbergMarquardt(rtol=1e-10).solve(problem)
+    _, _, ata = problem.normal_equations(result.params)
+    d = result.params - c_true
+    chi2 = float(d @ ata @ d)  # covariance = (A^T A)^-1 for unit-weight residuals
+    assert chi2 < stats.chi2.ppf(0.999, df=len(d))
+    assert chi2 > stats.chi2.ppf(0.001, df=len(d))  # and not suspiciously exact
+
+
+def test_kaula_diagonal_and_scan(sh_world):
+    model, c_true, arcs = sh_world
+    problem = ArcProblem(model, arcs)
+    k = kaula_diagonal(problem)
+    assert k[0] == 16.0 and k[-1] == 256.0  # C20 ... S44
+    alpha, result, scores = scan_kaula(
+        problem, lambda c: float(np.linalg.norm(c - c_true)), alphas=(1e-8, 1e-2, 1e2)
+    )
+    assert alpha == 1e-8  # noiseless data: the least regularised fit is the best
+    assert [a for a, _ in scores] == [1e-8, 1e-2, 1e2]
+    assert scores[-1][1] > scores[0][1]
+
+
+def test_warm_start_converges_faster(sh_world, synthetic_truth):
+    model, _, arcs = sh_world
+    rng = np.random.default_rng(0)
+    noisy = replace(arcs, states=arcs.states + rng.normal(size=arcs.states.shape) * 1e-6)
+    stages = [np.arange(0, 5), np.arange(5, 9)]
+
+    def estimator():
+        return GravityEstimator(
+            "sh", degree=4, solver=LevenbergMarquardt(rtol=1e-9), body=synthetic_truth.body
+        )
+
+    warm_fit, cold_fit = estimator(), estimator()
+    warm = fit_continual(warm_fit, noisy, stages)
+    cold = fit_continual(cold_fit, noisy, stages, warm_start=False)
+    assert warm_fit.model_.key() == model.key()
+    assert warm[1].n_arcs == cold[1].n_arcs == 9
+    assert warm[1].warm_started and not cold[1].warm_started
+    assert warm[1].result.iterations < cold[1].result.iterations
+    assert warm[1].result.cost == pytest.approx(cold[1].result.cost, rel=1e-6)
+    assert [s["stage"] for s in warm_fit.fitted_.stages] == [0, 1]
+
+
+def test_adam_lowers_validation_loss(small_arcs):
+    nn = NeuralPotential((16,))
+    problem = ArcProblem(Model((PointMass(),), nn), small_arcs)
+    train, val = split_validation(small_arcs.n_arcs, 0.2, 0)
+    result = Adam(steps=30, batch_size=4, eval_every=5, learning_rate=1e-2).solve(
+        problem, nn.initial_params(0), train=train, validation=val
+    )
+    start = problem.cost(nn.initial_params(0), val)
+    assert problem.cost(result.params, val) < start
+    assert result.best_iteration > 0
+
+
+def test_adam_is_seeded(small_arcs):
+    nn = NeuralPotential((8,))
+    problem = ArcProblem(Model((PointMass(),), nn), small_arcs)
+    a = Adam(steps=6, batch_size=3, seed=4).solve(problem, nn.initial_params(0))
+    b = Adam(steps=6, batch_size=3, seed=4).solve(problem, nn.initial_params(0))
+    assert np.array_equal(a.params, b.params)
+
+
+def test_cosine_schedule():
+    adam = Adam(learning_rate=1e-2, final_learning_rate_ratio=0.1, steps=100)
+    assert adam.learning_rate_at(0) == pytest.approx(1e-2)
+    assert adam.learning_rate_at(50) == pytest.approx(0.55e-2)
+    assert adam.learning_rate_at(100) == pytest.approx(1e-3)
+
+
+def test_adam_resumes_exactly(small_arcs):
+    nn = NeuralPotential((8,))
+    problem = ArcProblem(Model((PointMass(),), nn), small_arcs)
+    train, val = split_validation(small_arcs.n_arcs, 0.2, 1)
+    adam = Adam(steps=8, batch_size=3, eval_every=2, seed=2)
+    full = adam.solve(problem, nn.initial_params(0), train=train, validation=val)
+    saved = {}
+
+    def keep(theta, state):
+        if state["step"] == 4:
+            saved.update(theta=theta.copy(), state=state)
+
+    replace(adam, checkpoint_every=2).solve(
+        problem, nn.initial_params(0), train=train, validation=val, checkpoint=keep
+    )
+    resumed = adam.solve(
+        problem, saved["theta"], train=train, validation=val, resume=saved["state"]
+    )
+    assert np.array_equal(resumed.params, full.params)
+    assert resumed.history["validation"] == full.history["validation"]

@@ -1,0 +1,78 @@
+import h5py
+import numpy as np
+import pytest
+
+from hamgrav.errors import DatasetError
+from hamgrav.io.arcs import load_arcs, save_arcs
+from hamgrav.io.files import atomic_path
+
+
+def test_round_trip_exact(small_arcs, tmp_path):
+    path = save_arcs(small_arcs, tmp_path / "arcs.h5")
+    back = load_arcs(path)
+    for name in ("times", "states", "true_states", "trajectory"):
+        assert np.array_equal(getattr(back, name), getattr(small_arcs, name))
+    assert np.array_equal(back.truth.positions, small_arcs.truth.positions)
+    assert np.array_equal(back.truth.masses, small_arcs.truth.masses)
+    for key, value in small_arcs.trajectory_info.items():
+        assert np.array_equal(back.trajectory_info[key], value)
+    for name in (
+        "body_name",
+        "gm_m3_s2",
+        "spin_period_s",
+        "body_origin_m",
+        "sigma_r_m",
+        "sigma_v_m_s",
+        "interior",
+        "interior_parameters",
+        "seed",
+        "trajectory_kind",
+    ):
+        assert getattr(back, name) == getattr(small_arcs, name), name
+    assert list(tmp_path.iterdir()) == [path]  # no temporary left behind
+
+
+def test_truncated_file(small_arcs, tmp_path):
+    path = save_arcs(small_arcs, tmp_path / "arcs.h5")
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(DatasetError, match="truncated, corrupted or not a hamgrav arcs file"):
+        load_arcs(path)
+
+
+def test_corrupted_bytes(small_arcs, tmp_path):
+    path = save_arcs(small_arcs, tmp_path / "arcs.h5")
+    data = bytearray(path.read_bytes())
+    data[:64] = b"\x00" * 64
+    path.write_bytes(bytes(data))
+    with pytest.raises(DatasetError, match="arcs.h5 is truncated, corrupted"):
+        load_arcs(path)
+
+
+def test_missing_dataset_named(small_arcs, tmp_path):
+    path = save_arcs(small_arcs, tmp_path / "arcs.h5")
+    with h5py.File(path, "a") as f:
+        del f["true_states"]
+    with pytest.raises(DatasetError, match="dataset 'true_states' is missing"):
+        load_arcs(path)
+
+
+def test_other_hdf5_file_refused(tmp_path):
+    path = tmp_path / "other.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "something-else"
+    with pytest.raises(DatasetError, match="not a hamgrav arcs file"):
+        load_arcs(path)
+
+
+def test_failed_write_leaves_nothing(tmp_path):
+    target = tmp_path / "out.h5"
+    with pytest.raises(RuntimeError, match="boom"), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_missing_folder_named(small_arcs, tmp_path):
+    with pytest.raises(DatasetError, match="output folder .*nope does not exist"):
+        save_arcs(small_arcs, tmp_path / "nope" / "arcs.h5")
