@@ -84,33 +84,43 @@ class CanonicalUnits:
 
     # Conversions. ``to_*`` take SI and return canonical, ``from_*`` the reverse.
     def to_length(self, metres):
+        """A length [m] in canonical units."""
         return np.asarray(metres, dtype=float) / self.length_m
 
     def from_length(self, canonical):
+        """A canonical length in [m]."""
         return np.asarray(canonical, dtype=float) * self.length_m
 
     def to_time(self, seconds):
+        """A time [s] in canonical units."""
         return np.asarray(seconds, dtype=float) / self.time_s
 
     def from_time(self, canonical):
+        """A canonical time in [s]."""
         return np.asarray(canonical, dtype=float) * self.time_s
 
     def to_velocity(self, m_s):
+        """A velocity [m/s] in canonical units."""
         return np.asarray(m_s, dtype=float) / self.velocity_m_s
 
     def from_velocity(self, canonical):
+        """A canonical velocity in [m/s]."""
         return np.asarray(canonical, dtype=float) * self.velocity_m_s
 
     def to_acceleration(self, m_s2):
+        """A acceleration [m/s^2] in canonical units."""
         return np.asarray(m_s2, dtype=float) / self.acceleration_m_s2
 
     def from_acceleration(self, canonical):
+        """A canonical acceleration in [m/s^2]."""
         return np.asarray(canonical, dtype=float) * self.acceleration_m_s2
 
     def to_potential(self, m2_s2):
+        """A potential [m^2/s^2] in canonical units."""
         return np.asarray(m2_s2, dtype=float) / self.potential_m2_s2
 
     def from_potential(self, canonical):
+        """A canonical potential in [m^2/s^2]."""
         return np.asarray(canonical, dtype=float) * self.potential_m2_s2
 
     def state_to_canonical(self, position_m, velocity_m_s) -> np.ndarray:

@@ -144,18 +144,22 @@ class NeuralPotential(Term):
 
     @property
     def layer_sizes(self) -> tuple[int, ...]:
+        """Layer widths, input (3: x, y, z) to output (1)."""
         return (3, *self.hidden, 1)
 
     @property
     def n_weights(self) -> int:
+        """Number of weights (the first block of the parameter layout)."""
         s = self.layer_sizes
         return sum(s[i] * s[i + 1] for i in range(len(s) - 1))
 
     @property
     def n_params(self) -> int:  # type: ignore[override]
+        """Weights plus biases."""
         return self.n_weights + sum(self.layer_sizes[1:])
 
     def network(self, offset: int = 0) -> hy.expression:
+        """NN(x, y, z), dimensionless, its parameters at ``par[offset:]``."""
         pars = [hy.par[offset + i] for i in range(self.n_params)]
         activations = [hy.tanh] * len(self.hidden) + [lambda e: e]
         (out,) = hy.model.ffnn(
@@ -173,6 +177,7 @@ class NeuralPotential(Term):
         return self.scale * envelope * self.network(offset)
 
     def initial_params(self, seed: int = 0) -> np.ndarray:
+        """Glorot-uniform weights (seeded), zero biases."""
         rng = np.random.default_rng(seed)
         s = self.layer_sizes
         weights = [
@@ -182,6 +187,7 @@ class NeuralPotential(Term):
         return np.concatenate(weights + [np.zeros(sum(s[1:]))])
 
     def last_bias_index(self) -> int:
+        """Index of the output bias in the parameter layout."""
         return self.n_params - 1
 
     def key(self) -> str:
@@ -230,6 +236,7 @@ class SphericalHarmonics(Term):
 
     @property
     def n_params(self) -> int:  # type: ignore[override]
+        """(L + 1)^2 - 4 coefficients: degrees 2..L."""
         return (self.degree + 1) ** 2 - 4
 
     def coefficient_table(self, values) -> list[list]:
@@ -283,6 +290,7 @@ class SolarRadiationPressure(Term):
         return reflectivity * pressure_n_m2 / units.acceleration_m_s2
 
     def sun_direction(self) -> list[hy.expression]:
+        """Unit vector to the Sun in the body frame, a function of canonical time."""
         lat = math.radians(self.sun_latitude_deg)
         t = hy.time
         # inertial (cos lat, 0, sin lat) seen from the frame rotated by angle t about z

@@ -59,6 +59,8 @@ class Campaign:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "campaign") -> Campaign:
+        """A campaign from plain data (a parsed TOML file); errors name ``source``."""
+
         def fail(msg: str):
             raise CampaignError(f"{source}: {msg}")
 
