@@ -1,9 +1,13 @@
 """Exact sensitivities against central finite differences (tests only), and the shared path."""
 
+from dataclasses import dataclass
+
+import heyoka as hy
 import numpy as np
 import pytest
 
 from hamgrav.bodies.shape_prior import fit_shape_prior
+from hamgrav.core.hamiltonian import POSITION
 from hamgrav.core.model import Model, compiled_integrators
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.terms import (
@@ -12,6 +16,7 @@ from hamgrav.core.terms import (
     PointMass,
     SolarRadiationPressure,
     SphericalHarmonics,
+    Term,
     sh_coefficients_of_mascons,
 )
 
@@ -150,3 +155,44 @@ def test_bad_theta_named(arcs):
     problem = ArcProblem(Model((PointMass(),), SphericalHarmonics(3, 0.7)), arcs)
     with pytest.raises(ValueError, match="theta must have 12 entries"):
         problem.predict(np.zeros(5))
+
+
+@dataclass(frozen=True)
+class _ConstantForce(Term):
+    """A per-trajectory constant acceleration (a_x, a_y, a_z): a second kind of trajectory
+    parameter, three per trajectory, written without touching the model or the problem."""
+
+    trajectory_params = 3
+
+    def potential(self, offset: int = 0):
+        x, y, z = POSITION
+        return hy.par[offset] * x + hy.par[offset + 1] * y + hy.par[offset + 2] * z
+
+    def key(self) -> str:
+        return "force"
+
+    def describe(self) -> dict:
+        return {"kind": "force"}
+
+
+def test_any_per_trajectory_term_is_estimated(arcs, synthetic_truth):
+    """Two per-trajectory terms (SRP, 1 value; a constant force, 3 values) estimated with the
+    learnable term: layout trajectory-major, exact sensitivities, each trajectory's columns
+    moving only its own arcs."""
+    units = synthetic_truth.body.units
+    srp = SolarRadiationPressure(SolarRadiationPressure.pressure_for(units), 20.0)
+    sh = SphericalHarmonics(2, synthetic_truth.body.brillouin_radius)
+    model = Model((PointMass(),), sh, (srp, _ConstantForce()))
+    problem = ArcProblem(model, arcs, estimate_trajectory_params=True, tol=TOL)
+    assert model.n_trajectory_params == 4 and problem.n_params == sh.n_params + 3 * 4
+    rng = np.random.default_rng(5)
+    per_traj = np.column_stack([[0.2, 0.6, 1.1], rng.normal(size=(3, 3)) * 1e-4])
+    theta = np.concatenate([np.full(sh.n_params, 1e-3), per_traj.ravel()])
+    assert np.array_equal(problem.trajectory_params(theta), per_traj)
+    jac = problem.predict(theta, sensitivities=True).jacobian
+    for k in range(arcs.n_arcs):
+        own = sh.n_params + 4 * arcs.trajectory[k] + np.arange(4)
+        others = np.setdiff1d(np.arange(sh.n_params, problem.n_params), own)
+        assert np.all(jac[k, ..., others] == 0.0)
+        assert np.all(np.abs(jac[k, 1:, :, own]).max(axis=(1, 2)) > 0)
+    _check_fd(problem, theta, [0, sh.n_params + 1, sh.n_params + 4 * 2 + 3])

@@ -112,3 +112,20 @@ def test_results_folder(tmp_path):
 def test_repeat_must_be_positive():
     with pytest.raises(InputError, match="--repeat must be at least 1"):
         run_experiment("descent", TINY, repeat=0)
+
+
+def test_single_run_maps_its_own_work_over_the_cluster(tmp_path):
+    """One repetition on a LocalCluster maps its candidate-pool informations over the
+    workers (nested work units) and still gives the in-process numbers."""
+    from hamgrav.experiments.solvers import SolverExperimentConfig
+
+    config = SolverExperimentConfig(
+        body="synthetic", n_mascons=60, orbits=4, arcs_per_orbit=2, window_spin_periods=0.5,
+        min_radius_rb=1.0, hidden=(4,), adam_steps=3, lm_iterations=2, stages=2, picks=3,
+    )  # fmt: skip
+    local, _ = run_experiment("solvers", config, seed=1, verbose=False)
+    cluster, _ = run_experiment("solvers", config, seed=1, workers=2, verbose=False)
+    a = _without_timing(local["repetitions"][0])
+    b = _without_timing(cluster["repetitions"][0])
+    assert a["d_optimal"] == b["d_optimal"]
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)

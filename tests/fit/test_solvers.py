@@ -136,3 +136,22 @@ def test_adam_resumes_exactly(small_arcs):
     )
     assert np.array_equal(resumed.params, full.params)
     assert resumed.history["validation"] == full.history["validation"]
+
+
+def test_kaula_scan_on_a_dask_client_equals_builtin_map(sh_world):
+    from dask.distributed import Client
+
+    model, c_true, arcs = sh_world
+    problem = ArcProblem(model, arcs)
+
+    def metric(c):
+        return float(np.linalg.norm(c - c_true))
+
+    alphas = (1e-8, 1e-4)
+    serial = scan_kaula(problem, metric, alphas=alphas)
+    with Client(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=None) as c:
+        mapped = scan_kaula(
+            problem, metric, alphas=alphas, mapper=lambda f, xs: c.gather(c.map(f, list(xs)))
+        )
+    assert mapped[0] == serial[0] and mapped[2] == serial[2]
+    assert np.array_equal(mapped[1].params, serial[1].params)

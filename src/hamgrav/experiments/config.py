@@ -4,12 +4,12 @@ checked at the edge, and written back into results.json."""
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 import types
 import typing
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.files import read_toml
 
 __all__ = ["ExperimentConfig", "option"]
 
@@ -94,13 +94,10 @@ class ExperimentConfig:
     @classmethod
     def from_toml(cls, path: str | Path) -> ExperimentConfig:
         """A config from a TOML file of top-level keys."""
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"config file not found: {path}")
         try:
-            data = tomllib.loads(path.read_text())
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path}: not valid TOML ({exc})") from None
+            data = read_toml(path)
+        except InputError as exc:
+            raise InputError(f"config {exc}") from None
         return cls.from_dict(data, source=str(path))
 
     def updated(self, overrides: dict, source: str = "options") -> ExperimentConfig:

@@ -73,7 +73,7 @@ class DescentExperiment(Experiment):
     aggregate_keys = ("models", "field_error")
     default_output = "results/descent-itokawa"
 
-    def run(self, config: DescentExperimentConfig, seed: int, say) -> RunOutput:
+    def run(self, config: DescentExperimentConfig, seed: int, say, mapper=map) -> RunOutput:
         truth, arcs = simulate(config, seed, say)
         rows = {"point-mass": {"term": "none"}}
         rows |= {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}

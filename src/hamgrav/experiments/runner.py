@@ -74,8 +74,12 @@ class Experiment(ABC):
         return self.config_type()
 
     @abstractmethod
-    def run(self, config: ExperimentConfig, seed: int, say: Callable[[str], None]) -> RunOutput:
-        """One repetition; ``say(text)`` reports progress (rounded figures, with units)."""
+    def run(
+        self, config: ExperimentConfig, seed: int, say: Callable[[str], None], mapper=map
+    ) -> RunOutput:
+        """One repetition; ``say(text)`` reports progress (rounded figures, with units);
+        ``mapper`` maps independent work units (Kaula scans, candidate pools) over the
+        cluster when there is one (builtin ``map`` otherwise)."""
 
     @abstractmethod
     def readme(self, report: dict) -> list[str]:
@@ -119,6 +123,14 @@ def _stderr_say(prefix: str) -> Callable[[str], None]:
     return say
 
 
+def _cluster_map(function, items) -> list:
+    """Map ``function`` over ``items`` on the cluster running the current task."""
+    from dask.distributed import worker_client
+
+    with worker_client() as client:
+        return client.gather(client.map(function, list(items), pure=False))
+
+
 def run_unit(
     experiment_name: str,
     config: dict,
@@ -126,8 +138,10 @@ def run_unit(
     bodies_folder: str | None = None,
     verbose: bool = False,
     prefix: str = "",
+    nested: bool = False,
 ) -> RunOutput:
-    """One repetition as a pure function of plain data (the Dask work unit)."""
+    """One repetition as a pure function of plain data (the Dask work unit); with ``nested``
+    its own independent work (Kaula scans, candidate pools) is mapped over the cluster too."""
     import os
 
     if bodies_folder:
@@ -136,7 +150,7 @@ def run_unit(
     cfg = experiment.config_type.from_dict(config)
     say = _stderr_say(prefix) if verbose else (lambda text: None)
     start = time.perf_counter()
-    out = experiment.run(cfg, int(seed), say)
+    out = experiment.run(cfg, int(seed), say, _cluster_map if nested else map)
     result = {**out.result, "seed": int(seed), "wall_s": round(time.perf_counter() - start, 1)}
     return RunOutput(result, out.artefacts)
 
@@ -262,6 +276,7 @@ def run_experiment(
                 folder,
                 verbose,
                 f"[seed {s}] " if repeat > 1 else "",
+                bool(workers or scheduler) and repeat == 1,
                 pure=False,
             ): s
             for s in seeds

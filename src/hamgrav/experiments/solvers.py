@@ -48,7 +48,7 @@ class SolverExperiment(Experiment):
     aggregate_keys = ("field_error",)
     default_output = "results/solvers-itokawa"
 
-    def run(self, config: SolverExperimentConfig, seed: int, say) -> RunOutput:
+    def run(self, config: SolverExperimentConfig, seed: int, say, mapper=map) -> RunOutput:
         truth, arcs = simulate(config, seed, say)
         sets = sets_for(truth, (1.05, 1.2, 1.5), (30.0,), seed)
         rows = {f"sh{d}-lm": {"term": "sh", "degree": d} for d in (4, 8)}
@@ -100,7 +100,7 @@ class SolverExperiment(Experiment):
         first = fit(
             "sh4 (stage 1)", arcs.subset(stage_arcs[0]), truth, seed, say, term="sh", degree=4
         )
-        infos = trajectory_informations(first.model_, first.params_, arcs)
+        infos = trajectory_informations(first.model_, first.params_, arcs, mapper=mapper)
         n_pick = min(config.picks, config.orbits)
         picked, greedy_logdet, gains = greedy_d_optimal(infos, n_pick)
         randoms = [random_order_logdet(infos, n_pick, seed=s) for s in range(5)]

@@ -5,12 +5,10 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.problem import ArcProblem
 from .base import Outcome, Solver, SolveResult
 
 __all__ = ["Adam"]
@@ -45,26 +43,17 @@ class Adam(Solver):
         lo = self.learning_rate * self.final_learning_rate_ratio
         return lo + 0.5 * (self.learning_rate - lo) * (1 + math.cos(math.pi * step / self.steps))
 
-    def solve(
-        self,
-        problem: ArcProblem,
-        theta0: np.ndarray | None = None,
-        *,
-        train: np.ndarray | None = None,
-        validation: np.ndarray | None = None,
-        callback: Callable[[int, dict], None] | None = None,
-        checkpoint: Callable[[np.ndarray, dict], None] | None = None,
-        resume: dict | None = None,
+    def _iterate(
+        self, problem, theta, train, validation, callback, checkpoint, resume
     ) -> SolveResult:
         start = time.perf_counter()
         rng = np.random.default_rng(self.seed)
-        theta = np.zeros(problem.n_params) if theta0 is None else np.array(theta0, dtype=float)
         train = np.arange(problem.arcs.n_arcs) if train is None else np.asarray(train)
         per_arc = problem.arcs.samples_per_arc * 6
         m = np.zeros_like(theta)
         v = np.zeros_like(theta)
         history = {"step": [], "train": [], "validation": [], "time_s": []}
-        has_val = validation is not None and len(validation) > 0
+        has_val = validation is not None
 
         def val_cost(th):
             return problem.cost(th, validation) / (len(validation) * per_arc)
@@ -147,14 +136,12 @@ class Adam(Solver):
             outcome = Outcome.COMPLETED
             message = f"{self.steps} steps; best validation at step {best_step}"
         return SolveResult(
-            params=theta,
-            cost=float(train_cost),
-            initial_cost=float(initial_cost),
-            iterations=self.steps,
-            best_iteration=best_step,
-            outcome=outcome,
-            message=message,
-            history=history,
-            wall_s=time.perf_counter() - start,
-            solver=self.describe(),
+            theta,
+            float(train_cost),
+            float(initial_cost),
+            self.steps,
+            best_step,
+            outcome,
+            message,
+            history,
         )

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import enum
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -85,7 +86,6 @@ class Solver(ABC):
 
     name: str = "solver"
 
-    @abstractmethod
     def solve(
         self,
         problem: ArcProblem,
@@ -97,13 +97,27 @@ class Solver(ABC):
         checkpoint: Callable[[np.ndarray, dict], None] | None = None,
         resume: dict | None = None,
     ) -> SolveResult:
-        """Minimise the cost over the ``train`` arcs from ``theta0`` (zeros if None).
+        """Minimise the cost over the ``train`` arcs (all if None) from ``theta0`` (zeros if
+        None).
 
         With ``validation`` arcs, the iterate with the lowest validation cost is returned.
         ``callback(iteration, record)`` reports progress; ``checkpoint(theta, state)`` is called
         with everything needed to continue, and passing that state back as ``resume`` (with
         theta as ``theta0``) continues the run.
         """
+        start = time.perf_counter()
+        theta = np.zeros(problem.n_params) if theta0 is None else np.array(theta0, dtype=float)
+        if validation is not None and len(validation) == 0:
+            validation = None
+        result = self._iterate(problem, theta, train, validation, callback, checkpoint, resume)
+        return replace(result, wall_s=time.perf_counter() - start, solver=self.describe())
+
+    @abstractmethod
+    def _iterate(
+        self, problem, theta, train, validation, callback, checkpoint, resume
+    ) -> SolveResult:
+        """The solver's iterations from ``theta`` (see :meth:`solve` for the arguments); the
+        result's wall time and settings are filled in by :meth:`solve`."""
 
     def describe(self) -> dict:
         """The solver's name and settings (plain data)."""

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,19 +60,10 @@ class LevenbergMarquardt(Solver):
 
     name = "levenberg-marquardt"
 
-    def solve(
-        self,
-        problem: ArcProblem,
-        theta0: np.ndarray | None = None,
-        *,
-        train: np.ndarray | None = None,
-        validation: np.ndarray | None = None,
-        callback: Callable[[int, dict], None] | None = None,
-        checkpoint: Callable[[np.ndarray, dict], None] | None = None,
-        resume: dict | None = None,
+    def _iterate(
+        self, problem, theta, train, validation, callback, checkpoint, resume
     ) -> SolveResult:
         start = time.perf_counter()
-        theta = np.zeros(problem.n_params) if theta0 is None else np.array(theta0, dtype=float)
         kaula = self.kaula_alpha * kaula_diagonal(problem)
 
         def reg_cost(c, th):
@@ -88,7 +78,7 @@ class LevenbergMarquardt(Solver):
         lam = self.lambda0 if resume is None else float(resume["lambda"])
         history = {"cost": [cost], "lambda": [lam], "accepted": [True], "time_s": [0.0]}
         best = (np.inf, theta.copy(), 0)
-        has_val = validation is not None and len(validation) > 0
+        has_val = validation is not None
         if has_val:
             history["validation"] = [problem.cost(theta, validation)]
             best = (history["validation"][0], theta.copy(), 0)
@@ -139,15 +129,4 @@ class LevenbergMarquardt(Solver):
             theta = best[1]
         if n_accepted == 0 or (has_val and best_it == 0):
             outcome, message = Outcome.NO_IMPROVEMENT, f"no improvement ({message})"
-        return SolveResult(
-            params=theta,
-            cost=cost,
-            initial_cost=initial_cost,
-            iterations=it,
-            best_iteration=best_it,
-            outcome=outcome,
-            message=message,
-            history=history,
-            wall_s=time.perf_counter() - start,
-            solver=self.describe(),
-        )
+        return SolveResult(theta, cost, initial_cost, it, best_it, outcome, message, history)

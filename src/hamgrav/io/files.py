@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import os
 import tempfile
+import tomllib
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..errors import DatasetError
+from ..errors import DatasetError, InputError
 
-__all__ = ["atomic_path"]
+__all__ = ["atomic_path", "read_toml"]
 
 
 @contextmanager
@@ -30,3 +31,14 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def read_toml(path: str | os.PathLike) -> dict:
+    """The table of a TOML file; a missing or malformed file raises :class:`InputError`."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"file not found: {path}")
+    try:
+        return tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid TOML ({exc})") from None

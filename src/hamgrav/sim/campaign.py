@@ -23,7 +23,6 @@ Example::
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from ..bodies.catalogue import load_body
 from ..bodies.interiors import DEFAULT_TRUTH_MASCONS, INTERIORS, Truth, build_truth
 from ..core.arcs import Arcs
 from ..errors import InputError
+from ..io.files import read_toml
 from .tracking import OrbitFamily, TrackingConfig, orbit_grid, simulate_orbits
 
 __all__ = ["CampaignError", "Campaign", "load_campaign", "simulate_campaign"]
@@ -124,13 +124,10 @@ class Campaign:
 
 def load_campaign(path: str | Path) -> Campaign:
     """Read a campaign TOML file (see the module docstring)."""
-    path = Path(path)
-    if not path.is_file():
-        raise CampaignError(f"campaign file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise CampaignError(f"{path}: not valid TOML ({exc})") from None
+        data = read_toml(path)
+    except InputError as exc:
+        raise CampaignError(f"campaign {exc}") from None
     return Campaign.from_dict(data, source=str(path))
 
 
