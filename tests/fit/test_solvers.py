@@ -149,7 +149,7 @@ def test_kaula_scan_on_a_dask_client_equals_builtin_map(sh_world):
 
     alphas = (1e-8, 1e-4)
     serial = scan_kaula(problem, metric, alphas=alphas)
-    with Client(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=None) as c:
+    with Client(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=":0") as c:
         mapped = scan_kaula(
             problem, metric, alphas=alphas, mapper=lambda f, xs: c.gather(c.map(f, list(xs)))
         )

@@ -66,8 +66,20 @@ def simulate(config: CampaignConfig, seed: int, say) -> tuple[Truth, Arcs]:
 
 
 def fit(name: str, arcs: Arcs, truth: Truth, seed: int, say, **settings) -> GravityEstimator:
-    """Fit one row of an experiment through the estimator (the one fit path)."""
-    estimator = GravityEstimator(body=truth.body, seed=seed, **settings).fit(arcs)
+    """Fit one row of an experiment through the estimator (the one fit path), reporting
+    progress about every 20 s."""
+    last = [time.perf_counter()]
+
+    def progress(iteration: int, record: dict) -> None:
+        if time.perf_counter() - last[0] > 20.0:
+            last[0] = time.perf_counter()
+            costs = ", ".join(
+                f"{k} {v:.3g}" for k, v in record.items() if k in ("train", "validation", "cost")
+            )
+            say(f"{name}: iteration {iteration} ({costs}, canonical units)")
+
+    estimator = GravityEstimator(body=truth.body, seed=seed, **settings)
+    estimator.fit(arcs, callback=progress)
     r = estimator.result_
     say(f"{name}: {r.outcome.value}, {r.iterations} iterations in {r.wall_s:.1f} s")
     return estimator

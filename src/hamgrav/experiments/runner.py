@@ -171,7 +171,7 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
                 n_workers=int(workers),
                 threads_per_worker=1,
                 processes=True,
-                dashboard_address=None,
+                dashboard_address=":0",  # a free port: never clash with another cluster
                 silence_logs=logging.ERROR,
             ) as cluster,
             Client(cluster) as client,
@@ -182,7 +182,7 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
         processes=False,
         n_workers=1,
         threads_per_worker=1,
-        dashboard_address=None,
+        dashboard_address=":0",  # a free port: never clash with another cluster
         silence_logs=logging.ERROR,
     ) as client:
         yield client
