@@ -17,6 +17,7 @@ from ..fit.estimator import GravityEstimator
 from ..sim.campaign import Campaign, build_campaign_truth
 from ..sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
 from .config import ExperimentConfig, option
+from .runner import RunContext
 
 __all__ = ["CampaignConfig", "simulate", "fit", "errors_of", "sets_for", "campaign_artefacts"]
 
@@ -53,19 +54,19 @@ class CampaignConfig(ExperimentConfig):
         return Campaign(self.body, self.interior, self.n_mascons, seed, tuple(families), tracking)
 
 
-def simulate(config: CampaignConfig, seed: int, say) -> tuple[Truth, Arcs]:
-    """The truth and its simulated arcs for ``config`` at ``seed``."""
+def simulate(config: CampaignConfig, ctx: RunContext) -> tuple[Truth, Arcs]:
+    """The truth and its simulated arcs for ``config`` at the context's seed."""
     start = time.perf_counter()
-    campaign = config.campaign(seed)
-    truth = build_campaign_truth(campaign)
+    campaign = config.campaign(ctx.seed)
+    truth = build_campaign_truth(campaign, folder=ctx.bodies_folder)
     arcs = simulate_orbits(
-        truth, list(campaign.families), campaign.tracking, seed=seed, config=campaign.as_dict()
+        truth, list(campaign.families), campaign.tracking, seed=ctx.seed, config=campaign.as_dict()
     )
-    say(f"truth and {arcs.n_arcs} arcs in {time.perf_counter() - start:.1f} s")
+    ctx.say(f"truth and {arcs.n_arcs} arcs in {time.perf_counter() - start:.1f} s")
     return truth, arcs
 
 
-def fit(name: str, arcs: Arcs, truth: Truth, seed: int, say, **settings) -> GravityEstimator:
+def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> GravityEstimator:
     """Fit one row of an experiment through the estimator (the one fit path), reporting
     progress about every 20 s."""
     last = [time.perf_counter()]
@@ -76,12 +77,12 @@ def fit(name: str, arcs: Arcs, truth: Truth, seed: int, say, **settings) -> Grav
             costs = ", ".join(
                 f"{k} {v:.3g}" for k, v in record.items() if k in ("train", "validation", "cost")
             )
-            say(f"{name}: iteration {iteration} ({costs}, canonical units)")
+            ctx.say(f"{name}: iteration {iteration} ({costs}, canonical units)")
 
-    estimator = GravityEstimator(body=truth.body, seed=seed, **settings)
+    estimator = GravityEstimator(body=truth.body, seed=ctx.seed, mapper=ctx.mapper, **settings)
     estimator.fit(arcs, callback=progress)
     r = estimator.result_
-    say(f"{name}: {r.outcome.value}, {r.iterations} iterations in {r.wall_s:.1f} s")
+    ctx.say(f"{name}: {r.outcome.value}, {r.iterations} iterations in {r.wall_s:.1f} s")
     return estimator
 
 

@@ -22,7 +22,7 @@ from ..sim.descent import DescentConfig, descend, miss_statistics, release_state
 from .common import CampaignConfig, campaign_artefacts, errors_of, fit, sets_for, simulate
 from .config import option
 from .descent_report import descent_readme
-from .runner import Experiment, RunOutput, register
+from .runner import Experiment, RunContext, RunOutput, register
 
 __all__ = ["DescentExperimentConfig", "DescentExperiment", "PAPER_TABLE"]
 
@@ -73,8 +73,9 @@ class DescentExperiment(Experiment):
     aggregate_keys = ("models", "field_error")
     default_output = "results/descent-itokawa"
 
-    def run(self, config: DescentExperimentConfig, seed: int, say, mapper=map) -> RunOutput:
-        truth, arcs = simulate(config, seed, say)
+    def run(self, config: DescentExperimentConfig, ctx: RunContext) -> RunOutput:
+        seed, say = ctx.seed, ctx.say
+        truth, arcs = simulate(config, ctx)
         rows = {"point-mass": {"term": "none"}}
         rows |= {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}
         net = {"term": "network", "hidden": config.hidden}
@@ -88,7 +89,7 @@ class DescentExperiment(Experiment):
             **net,
             "solver": LevenbergMarquardt(max_iter=config.lm_iterations, rtol=1e-9),
         }
-        fits = {name: fit(name, arcs, truth, seed, say, **s) for name, s in rows.items()}
+        fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
 
         sets = sets_for(truth, config.shells_rb, (config.altitude_m,), seed)
         field_error = {n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()}

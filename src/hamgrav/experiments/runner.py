@@ -34,6 +34,7 @@ from .config import ExperimentConfig
 
 __all__ = [
     "Experiment",
+    "RunContext",
     "RunOutput",
     "register",
     "get_experiment",
@@ -55,6 +56,19 @@ class RunOutput:
     artefacts: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True, eq=False)
+class RunContext:
+    """Everything a repetition uses besides its config, as plain values: its ``seed``, the
+    body-data folder (``bodies_folder``, None: the default), ``say(text)`` for progress
+    (rounded figures with units) and ``mapper`` for independent work units (Kaula scans,
+    candidate pools): builtin ``map``, or the cluster's when there is one."""
+
+    seed: int
+    bodies_folder: str | None = None
+    say: Callable[[str], None] = field(default=lambda text: None)
+    mapper: Callable = map
+
+
 class Experiment(ABC):
     """An experiment of the paper: a config type and a pure function of (config, seed)."""
 
@@ -74,12 +88,8 @@ class Experiment(ABC):
         return self.config_type()
 
     @abstractmethod
-    def run(
-        self, config: ExperimentConfig, seed: int, say: Callable[[str], None], mapper=map
-    ) -> RunOutput:
-        """One repetition; ``say(text)`` reports progress (rounded figures, with units);
-        ``mapper`` maps independent work units (Kaula scans, candidate pools) over the
-        cluster when there is one (builtin ``map`` otherwise)."""
+    def run(self, config: ExperimentConfig, ctx: RunContext) -> RunOutput:
+        """One repetition of ``config`` (see :class:`RunContext` for ``ctx``)."""
 
     @abstractmethod
     def readme(self, report: dict) -> list[str]:
@@ -142,15 +152,16 @@ def run_unit(
 ) -> RunOutput:
     """One repetition as a pure function of plain data (the Dask work unit); with ``nested``
     its own independent work (Kaula scans, candidate pools) is mapped over the cluster too."""
-    import os
-
-    if bodies_folder:
-        os.environ["HAMGRAV_BODIES"] = bodies_folder
     experiment = get_experiment(experiment_name)
     cfg = experiment.config_type.from_dict(config)
-    say = _stderr_say(prefix) if verbose else (lambda text: None)
+    ctx = RunContext(
+        seed=int(seed),
+        bodies_folder=bodies_folder,
+        say=_stderr_say(prefix) if verbose else (lambda text: None),
+        mapper=_cluster_map if nested else map,
+    )
     start = time.perf_counter()
-    out = experiment.run(cfg, int(seed), say, _cluster_map if nested else map)
+    out = experiment.run(cfg, ctx)
     result = {**out.result, "seed": int(seed), "wall_s": round(time.perf_counter() - start, 1)}
     return RunOutput(result, out.artefacts)
 

@@ -21,7 +21,7 @@ from ..fit.lm import LevenbergMarquardt
 from ..report.figures import logdet_figure
 from .common import CampaignConfig, errors_of, fit, sets_for, simulate
 from .config import option
-from .runner import Experiment, RunOutput, register
+from .runner import Experiment, RunContext, RunOutput, register
 from .solvers_report import solvers_readme
 
 __all__ = ["SolverExperimentConfig", "SolverExperiment"]
@@ -48,8 +48,9 @@ class SolverExperiment(Experiment):
     aggregate_keys = ("field_error",)
     default_output = "results/solvers-itokawa"
 
-    def run(self, config: SolverExperimentConfig, seed: int, say, mapper=map) -> RunOutput:
-        truth, arcs = simulate(config, seed, say)
+    def run(self, config: SolverExperimentConfig, ctx: RunContext) -> RunOutput:
+        seed, say = ctx.seed, ctx.say
+        truth, arcs = simulate(config, ctx)
         sets = sets_for(truth, (1.05, 1.2, 1.5), (30.0,), seed)
         rows = {f"sh{d}-lm": {"term": "sh", "degree": d} for d in (4, 8)}
         lm = LevenbergMarquardt(max_iter=config.lm_iterations, rtol=1e-9)
@@ -63,7 +64,7 @@ class SolverExperiment(Experiment):
                 "learning_rate": config.learning_rate,
             }
             rows[f"network-lm-{tag}"] = {**common, "solver": lm}
-        fits = {name: fit(name, arcs, truth, seed, say, **s) for name, s in rows.items()}
+        fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
         summary = {name: est.fitted_.solver for name, est in fits.items()}
         field_error = {n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()}
 
@@ -97,10 +98,8 @@ class SolverExperiment(Experiment):
                 f"{[s['iterations'] for s in out['scratch']]}"
             )
 
-        first = fit(
-            "sh4 (stage 1)", arcs.subset(stage_arcs[0]), truth, seed, say, term="sh", degree=4
-        )
-        infos = trajectory_informations(first.model_, first.params_, arcs, mapper=mapper)
+        first = fit("sh4 (stage 1)", arcs.subset(stage_arcs[0]), truth, ctx, term="sh", degree=4)
+        infos = trajectory_informations(first.model_, first.params_, arcs, mapper=ctx.mapper)
         n_pick = min(config.picks, config.orbits)
         picked, greedy_logdet, gains = greedy_d_optimal(infos, n_pick)
         randoms = [random_order_logdet(infos, n_pick, seed=s) for s in range(5)]

@@ -131,9 +131,10 @@ def load_campaign(path: str | Path) -> Campaign:
     return Campaign.from_dict(data, source=str(path))
 
 
-def build_campaign_truth(campaign: Campaign) -> Truth:
-    """The campaign's truth interior, centred on its centre of mass."""
-    body = load_body(campaign.body)
+def build_campaign_truth(campaign: Campaign, folder=None) -> Truth:
+    """The campaign's truth interior, centred on its centre of mass (catalogue bodies read
+    from ``folder``, default :func:`hamgrav.bodies.catalogue.bodies_dir`)."""
+    body = load_body(campaign.body, folder=folder)
     return build_truth(body, campaign.interior, n_mascons=campaign.n_mascons, seed=campaign.seed)
 
 
