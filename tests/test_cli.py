@@ -122,6 +122,7 @@ def test_fit_evaluate_select(arcs_file, tmp_path):
         app, ["select", str(model), "--pool", str(pool), "--picks", "2", "-o", str(picks)]
     )
     assert result.exit_code == 0, result.output
+    assert "incl. [deg]" in result.stdout  # units survive the table markup
     rows = json.loads(picks.read_text())["picks"]
     assert len(rows) == 2 and rows[0]["gain"] > rows[1]["gain"] > 0
 

@@ -357,7 +357,7 @@ def select(
         _fail(exc)
     table = Table(title="D-optimal picks (log det of the accumulated information)")
     for col in ("pick", "candidate", "r / R_B", "incl. [deg]", "gain", "log det", "random order"):
-        table.add_column(col, justify="right")
+        table.add_column(escape(col), justify="right")
     for r in rows:
         table.add_row(
             str(r["pick"]),
@@ -527,7 +527,7 @@ def demo(
     result = report["repetitions"][0]
     table = Table(title="synthetic contact binary: fitted models (from tracking alone)")
     for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):
-        table.add_column(col, justify="right")
+        table.add_column(escape(col), justify="right")
     for name, st in result["models"].items():
         fe = result["field_error"][name]
         cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "worst_m")]
