@@ -24,6 +24,17 @@ def small_arcs(synthetic_truth):
 
 
 @pytest.fixture(scope="session")
+def point_mass_arcs(synthetic_truth):
+    """Arcs of a truth that is a point mass: there is nothing to learn but noise."""
+    from hamgrav.bodies.interiors import Truth
+    from hamgrav.core.mascons import MasconSet
+
+    truth = Truth(synthetic_truth.body, MasconSet(np.zeros((1, 3)), np.ones(1)), "point")
+    families = [OrbitFamily(1.4, 20.0), OrbitFamily(1.7, 75.0), OrbitFamily(2.0, 45.0)]
+    return simulate_orbits(truth, families, TrackingConfig(arcs_per_orbit=4), seed=2)
+
+
+@pytest.fixture(scope="session")
 def data_folder():
     folder = bodies_dir()
     assert (folder / "catalogue.json").is_file(), (

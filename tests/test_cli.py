@@ -234,3 +234,18 @@ def test_internal_errors_are_not_user_errors(monkeypatch, arcs_file, tmp_path):
         app, ["fit", str(arcs_file), "--model", "sh:2", "-o", str(tmp_path / "m.h5")]
     )
     assert result.exit_code == 1 and isinstance(result.exception, ValueError)
+
+
+def test_fit_strict_fails_a_fit_that_learns_nothing(point_mass_arcs, tmp_path):
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.models import load_model
+
+    arcs = save_arcs(point_mass_arcs, tmp_path / "pm.h5")
+    out = tmp_path / "m.h5"
+    args = ["fit", str(arcs), "--model", "sh:2", "-o", str(out)]
+    lenient = runner.invoke(app, args)
+    assert lenient.exit_code == 0 and "does not clearly improve" in lenient.output
+    strict = runner.invoke(app, [*args, "--strict"])
+    assert strict.exit_code == 3 and "does not clearly improve" in strict.output
+    solver = load_model(out).solver
+    assert solver["outcome"] == "no improvement" and not solver["diagnostics"]["improved"]

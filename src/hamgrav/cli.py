@@ -186,8 +186,14 @@ def fit(
     resume: Annotated[
         bool, typer.Option(help="Continue an interrupted fit from its checkpoint.")
     ] = False,
+    strict: Annotated[
+        bool,
+        typer.Option(help="Exit with status 3 when the fit does not clearly beat no correction."),
+    ] = False,
 ) -> None:
-    """Fit a gravity correction to tracking arcs and write the model file."""
+    """Fit a gravity correction to tracking arcs and write the model file.
+
+    The model file is written in every case, with the fit's outcome and diagnostics."""
     from .fit.estimator import GravityEstimator, body_for_arcs, truth_shell_metric
     from .io.arcs import load_arcs
     from .io.models import (
@@ -261,11 +267,22 @@ def fit(
     except HamgravError as exc:
         _fail(exc)
     result = estimator.result_
+    diag = estimator.diagnostics_
     console.print(
         f"wrote {output}: {term} with {estimator.model_.n_learn} parameters, "
         f"{result.iterations} iterations in {result.wall_s:.1f} s ({result.outcome.value}: "
-        f"{result.message})"
+        f"{result.message}); cost on the {diag['checked_on']} {diag['relative_cost']:.3g} of "
+        f"no correction; {diag['constrained_parameters']} of {diag['n_params']} parameter "
+        "directions constrained by the arcs"
     )
+    if not diag["improved"]:
+        err.print(
+            "[bold yellow]warning:[/] the fit does not clearly improve on no correction "
+            f"(cost ratio {diag['relative_cost']:.3g}); do not use this model",
+            highlight=False,
+        )
+        if strict:
+            raise typer.Exit(code=3)
 
 
 @app.command()

@@ -97,3 +97,26 @@ def test_solver_object_is_used_as_given(small_arcs, synthetic_truth):
     assert est.result_.solver["max_iter"] == 3
     r_b = synthetic_truth.body.brillouin_radius
     assert est.model_.key() == Model((PointMass(),), SphericalHarmonics(2, r_b)).key()
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"term": "sh", "degree": 2},
+        {"term": "network", "hidden": (4,), "solver": LevenbergMarquardt(max_iter=5)},
+    ],
+)
+def test_a_fit_with_nothing_to_learn_says_so(point_mass_arcs, synthetic_truth, settings):
+    est = GravityEstimator(body=synthetic_truth.body, **settings).fit(point_mass_arcs)
+    assert est.result_.outcome.value == "no improvement"
+    assert not est.diagnostics_["improved"]
+    assert est.diagnostics_["relative_cost"] > 0.9
+    assert est.fitted_.solver["diagnostics"]["improved"] is False
+
+
+def test_a_fit_that_learns_says_so(small_arcs, synthetic_truth):
+    est = GravityEstimator("sh", degree=2, body=synthetic_truth.body).fit(small_arcs)
+    diag = est.diagnostics_
+    assert diag["improved"] and diag["relative_cost"] < 0.1
+    assert diag["constrained_parameters"] == 5 == diag["n_params"]
+    assert est.result_.outcome.value == "converged"

@@ -4,8 +4,10 @@
 given; ``fit`` builds the model (known part + learnable term + per-trajectory terms), decides
 the validation split, the solver, the initial point (scratch or warm start) and the
 per-trajectory parameters, runs the solver, and sets the learned attributes ``model_``,
-``params_``, ``result_``, ``train_``, ``validation_`` and ``fitted_`` (a
-:class:`~hamgrav.fit.fitted.FittedModel`). Calling ``fit`` again overwrites them.
+``params_``, ``result_``, ``train_``, ``validation_``, ``diagnostics_`` (see
+:mod:`hamgrav.fit.diagnostics`) and ``fitted_`` (a :class:`~hamgrav.fit.fitted.FittedModel`).
+Calling ``fit`` again overwrites them. A fit that does not clearly improve on no correction
+ends with the outcome "no improvement".
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from ..errors import InputError
 from ..units import CanonicalUnits
 from .adam import Adam
 from .base import Outcome, Solver, SolveResult
+from .diagnostics import diagnose
 from .fitted import FittedModel
 from .kaula import scan_kaula
 from .lm import LevenbergMarquardt
@@ -287,6 +290,23 @@ class GravityEstimator:
                 checkpoint=checkpoint,
                 resume=resume,
             )
+        if problem.n_params:
+            no_correction = init.copy()
+            no_correction[: model.n_learn] = 0.0
+            self.diagnostics_ = diagnose(problem, result.params, no_correction, train, validation)
+            if result.outcome.ok and not self.diagnostics_["improved"]:
+                result = replace(
+                    result,
+                    outcome=Outcome.NO_IMPROVEMENT,
+                    message=(
+                        f"no clear improvement over no correction: cost on the "
+                        f"{self.diagnostics_['checked_on']} "
+                        f"{self.diagnostics_['relative_cost']:.3f} of its value without the "
+                        f"learnable term ({result.message})"
+                    ),
+                )
+        else:
+            self.diagnostics_ = {"n_params": 0, "improved": False, "constrained_parameters": 0}
         self.model_ = model
         self.params_ = result.params
         self.result_ = result
@@ -301,6 +321,7 @@ class GravityEstimator:
             "seed": self.seed,
             "n_arcs": arcs.n_arcs,
             "n_params": problem.n_params,
+            "diagnostics": self.diagnostics_,
         }
         if kaula_scores is not None:
             solver_info["kaula_scan"] = kaula_scores

@@ -46,7 +46,9 @@ class LevenbergMarquardt(Solver):
     the (regularised) cost drops (lambda /= ``lambda_down``, floored at ``lambda_floor``), else
     rejected (lambda *= ``lambda_up``). Stops at a relative cost change below ``rtol``, when
     lambda exceeds ``lambda_ceiling`` or after ``max_iter`` iterations. ``kaula_alpha`` = alpha
-    (0: no regularisation).
+    (0: no regularisation). ``damping_floor`` > 0 floors the Marquardt scaling diag(A^T A) at
+    that fraction of its largest entry, so that parameters the data barely see (weights of
+    saturated tanh units, diag ~ 1e-50) are damped too.
     """
 
     lambda0: float = 1e-6
@@ -57,6 +59,7 @@ class LevenbergMarquardt(Solver):
     rtol: float = 1e-6
     max_iter: int = 50
     kaula_alpha: float = 0.0
+    damping_floor: float = 0.0
 
     name = "levenberg-marquardt"
 
@@ -84,7 +87,10 @@ class LevenbergMarquardt(Solver):
             best = (history["validation"][0], theta.copy(), 0)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
         for it in range(1, self.max_iter + 1):
-            lhs = ata + lam * np.diag(np.diag(ata)) + np.diag(kaula)
+            scaling = np.diag(ata)
+            if self.damping_floor > 0:
+                scaling = np.maximum(scaling, self.damping_floor * scaling.max())
+            lhs = ata + lam * np.diag(scaling) + np.diag(kaula)
             step = _solve_spd(lhs, -(atr + kaula * theta))
             trial = theta + step
             try:

@@ -1,0 +1,51 @@
+"""Fit diagnostics: did the fit learn anything, and how many directions do the data constrain.
+
+- ``relative_cost``: the fitted model's cost on the validation arcs (the training arcs when
+  there are none) divided by the cost of no correction (learnable parameters zero, the known
+  part alone) on the same arcs: 1 means the fit explains nothing the known part did not.
+- ``improved``: ``relative_cost`` below ``IMPROVEMENT_THRESHOLD``.
+- ``constrained_parameters``: the numerical rank of A^T A on the training arcs at the fitted
+  parameters (eigenvalues above 1e-12 of the largest, i.e. singular values of A above 1e-6 of
+  the largest): how many parameter directions the arcs determine.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.problem import ArcProblem
+
+__all__ = ["IMPROVEMENT_THRESHOLD", "diagnose"]
+
+#: A fit "clearly improves" over no correction when its held-out cost is below this fraction
+#: of the no-correction cost.
+IMPROVEMENT_THRESHOLD = 0.9
+
+
+def diagnose(
+    problem: ArcProblem,
+    params: np.ndarray,
+    no_correction: np.ndarray,
+    train: np.ndarray | None,
+    validation: np.ndarray | None,
+) -> dict:
+    """Diagnostics of ``params`` against ``no_correction`` (see the module docstring)."""
+    held_out = validation is not None and len(validation) > 0
+    arcs = validation if held_out else train
+    fitted = problem.cost(params, arcs)
+    none = problem.cost(no_correction, arcs)
+    relative = fitted / none if none > 0 else float("nan")
+    out = {
+        "checked_on": "validation arcs" if held_out else "training arcs",
+        "relative_cost": float(relative),
+        "improved": bool(relative < IMPROVEMENT_THRESHOLD),
+        "n_params": int(problem.n_params),
+    }
+    if problem.n_params:
+        _, _, ata = problem.normal_equations(params, train)
+        eig = np.linalg.eigvalsh(ata)
+        top = float(eig.max())
+        out["constrained_parameters"] = int(np.sum(eig > 1e-12 * top)) if top > 0 else 0
+    else:
+        out["constrained_parameters"] = 0
+    return out
