@@ -28,14 +28,15 @@ def test_descent_tiny(tmp_path):
     assert data["seeds"] == [0, 1] and len(data["repetitions"]) == 2
     assert data["config"]["sh_degrees"] == [2] and data["config"]["lm_iterations"] == 6
     for rep in data["repetitions"]:
-        assert set(rep["models"]) == {"point-mass", "sh2", "network", "network-lm"}
+        assert set(rep["models"]) == {"point-mass", "sh2", "network", "network-best"}
         for stats in rep["models"].values():
             assert stats["total"] == rep["truth_landed"] == 3
         fits = rep["fits"]
         # each row is fitted as its name says, and the fit moved from its start
         assert fits["network"]["solver"] == "adam" and fits["network"]["iterations"] == 3
-        assert fits["network-lm"]["solver"] == "levenberg-marquardt"
-        assert fits["network-lm"]["cost"] < 0.9 * fits["network-lm"]["initial_cost"]
+        assert fits["network-best"]["solver"] == "levenberg-marquardt"
+        assert fits["network-best"]["cost"] < 0.9 * fits["network-best"]["initial_cost"]
+        assert fits["network-best"]["damping_floor"] == 1e-6
         assert fits["sh2"]["solver"] == "levenberg-marquardt"
         assert fits["point-mass"]["n_params"] == 0
         # degree-2 SH learned the body's elongation: far better than no correction outside
@@ -88,3 +89,27 @@ def test_experiment_option_errors(tmp_path):
     assert result.exit_code == 2
     assert "interior must be one of" in result.output
     assert not (tmp_path / "x").exists()
+
+
+def test_continual_tiny(tmp_path):
+    out = tmp_path / "continual"
+    args = [
+        "experiment", "continual", *TINY_CAMPAIGN, "--orbits", "4", "--hidden", "4",
+        "--stages", "2", "--sh-degree", "2", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    rep = data["repetitions"][0]
+    assert [s["n_arcs"] for s in rep["stages"]] == [4, 8]
+    for stage in rep["stages"]:
+        for mode in ("warm", "scratch"):
+            assert set(stage[mode]) == {"network-best", "sh2"}
+            for values in stage[mode].values():
+                assert {"r1.05", "r1.2", "r1.5", "h30m", "iterations", "wall_s"} <= set(values)
+    assert rep["stages"][1]["warm"]["sh2"]["warm_started"]
+    assert not rep["stages"][1]["scratch"]["sh2"]["warm_started"]
+    summary = rep["summary"]["sh2"]
+    assert summary["final_r1.2_warm"] == rep["stages"][-1]["warm"]["sh2"]["r1.2"]
+    assert "## Against the targets" in (out / "README.md").read_text()
+    assert (out / "continual.png").stat().st_size > 1000

@@ -48,7 +48,8 @@ class LevenbergMarquardt(Solver):
     lambda exceeds ``lambda_ceiling`` or after ``max_iter`` iterations. ``kaula_alpha`` = alpha
     (0: no regularisation). ``damping_floor`` > 0 floors the Marquardt scaling diag(A^T A) at
     that fraction of its largest entry, so that parameters the data barely see (weights of
-    saturated tanh units, diag ~ 1e-50) are damped too.
+    saturated tanh units, diag ~ 1e-50) are damped too. With validation arcs and
+    ``patience``, the fit stops once the best validation cost is ``patience`` iterations old.
     """
 
     lambda0: float = 1e-6
@@ -60,6 +61,7 @@ class LevenbergMarquardt(Solver):
     max_iter: int = 50
     kaula_alpha: float = 0.0
     damping_floor: float = 0.0
+    patience: int | None = None
 
     name = "levenberg-marquardt"
 
@@ -121,6 +123,10 @@ class LevenbergMarquardt(Solver):
             if accepted and rel < self.rtol:
                 outcome = Outcome.CONVERGED
                 message = f"relative cost change {rel:.2e} < {self.rtol:g}"
+                break
+            if has_val and self.patience is not None and it - best[2] >= self.patience:
+                outcome = Outcome.CONVERGED
+                message = f"validation cost not lowered for {self.patience} iterations"
                 break
             if lam > self.lambda_ceiling:
                 outcome = Outcome.DAMPING_SATURATED

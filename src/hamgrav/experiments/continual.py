@@ -1,0 +1,99 @@
+"""Continual learning: the campaign arriving in stages, each stage's fit warm-started from the
+previous one, against fitting all arcs so far from scratch at every stage.
+
+The 112 arcs of the descent campaign arrive in ``stages`` stages of whole orbits (orbit grid
+order); the network (the ``network-best`` configuration) and SH 8 are fitted at every stage,
+warm and from scratch; validation arcs are drawn once per arriving stage and never trained on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..fit.continual import fit_continual
+from ..fit.estimator import GravityEstimator, preset
+from .common import CampaignConfig, errors_of, sets_for, simulate
+from .config import option
+from .continual_report import continual_figure, continual_readme
+from .runner import Experiment, RunContext, RunOutput, register
+
+__all__ = ["ContinualExperimentConfig", "ContinualExperiment"]
+
+
+@dataclass(frozen=True)
+class ContinualExperimentConfig(CampaignConfig):
+    """The continual campaign: stages of whole orbits; the network and SH 8."""
+
+    stages: int = option(4, "Stages (orbits split evenly, in grid order).")
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    sh_degree: int = option(8, "SH degree.")
+
+
+class ContinualExperiment(Experiment):
+    """See the module docstring."""
+
+    name = "continual"
+    title = "Continual learning: warm-started stages against fits from scratch"
+    config_type = ContinualExperimentConfig
+    aggregate_keys = ("summary",)
+    default_output = "results/continual-itokawa"
+
+    def run(self, config: ContinualExperimentConfig, ctx: RunContext) -> RunOutput:
+        truth, arcs = simulate(config, ctx)
+        sets = sets_for(truth, (1.05, 1.2, 1.5), (30.0,), ctx.seed)
+        groups = np.array_split(np.arange(config.orbits), config.stages)
+        arriving = [arcs.arcs_of(g) for g in groups]
+        models = {
+            "network-best": preset("network-best", hidden=config.hidden),
+            f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
+        }
+        counts = np.cumsum([len(a) for a in arriving])
+        stages = [{"n_arcs": int(n)} for n in counts]
+        for mode in ("warm", "scratch"):
+            for k in range(len(groups)):
+                stages[k][mode] = {}
+            for name, settings in models.items():
+                est = GravityEstimator(body=truth.body, seed=ctx.seed, **settings)
+                records = fit_continual(est, arcs, arriving, warm_start=mode == "warm")
+                for k, r in enumerate(records):
+                    stages[k][mode][name] = {
+                        **errors_of(est.model_, r.result.params, truth, sets),
+                        "iterations": r.result.iterations,
+                        "wall_s": r.result.wall_s,
+                        "outcome": r.result.outcome.value,
+                        "warm_started": r.warm_started,
+                    }
+                ctx.say(
+                    f"{mode} {name}: r1.2 by stage "
+                    + ", ".join(f"{stages[k][mode][name]['r1.2']:.3f}" for k in range(len(groups)))
+                    + f"; {sum(r.result.wall_s for r in records):.0f} s in all"
+                )
+        summary = {}
+        for name in models:
+            warm = [s["warm"][name] for s in stages]
+            scratch = [s["scratch"][name] for s in stages]
+            summary[name] = {
+                "final_r1.2_warm": warm[-1]["r1.2"],
+                "final_r1.2_scratch": scratch[-1]["r1.2"],
+                "final_warm_over_scratch": warm[-1]["r1.2"] / scratch[-1]["r1.2"],
+                "worst_stage_step": max(
+                    b["r1.2"] / a["r1.2"] for a, b in zip(warm, warm[1:], strict=False)
+                ),
+                "wall_warm_s": sum(s["wall_s"] for s in warm),
+                "wall_scratch_s": sum(s["wall_s"] for s in scratch),
+                "wall_ratio": sum(s["wall_s"] for s in warm)
+                / max(sum(s["wall_s"] for s in scratch), 1e-9),
+            }
+        result = {"body": config.body, "n_arcs": arcs.n_arcs, "stages": stages, "summary": summary}
+        return RunOutput(result)
+
+    def readme(self, report: dict) -> list[str]:
+        return continual_readme(report)
+
+    def figures(self, report: dict, artefacts: dict) -> dict:
+        return {"continual.png": continual_figure(report)}
+
+
+register(ContinualExperiment())
