@@ -249,3 +249,26 @@ def test_fit_strict_fails_a_fit_that_learns_nothing(point_mass_arcs, tmp_path):
     assert strict.exit_code == 3 and "does not clearly improve" in strict.output
     solver = load_model(out).solver
     assert solver["outcome"] == "no improvement" and not solver["diagnostics"]["improved"]
+
+
+def test_fit_init_continues_a_model_as_a_stage(small_arcs, tmp_path):
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.models import load_model
+
+    first = save_arcs(small_arcs.subset(range(5)), tmp_path / "first.h5")
+    everything = save_arcs(small_arcs, tmp_path / "all.h5")
+    stage1, stage2 = tmp_path / "s1.h5", tmp_path / "s2.h5"
+    base = ["--model", "sh:3"]
+    assert runner.invoke(app, ["fit", str(first), *base, "-o", str(stage1)]).exit_code == 0
+    result = runner.invoke(
+        app, ["fit", str(everything), *base, "--init", str(stage1), "-o", str(stage2)]
+    )
+    assert result.exit_code == 0, result.output
+    stages = load_model(stage2).stages
+    assert [s["stage"] for s in stages] == [0, 1]
+    assert [s["n_arcs"] for s in stages] == [5, 9]
+    assert stages[1]["warm_started"] and stages[0]["arcs_file"] == str(first)
+    other = runner.invoke(
+        app, ["fit", str(everything), "--model", "sh:2", "--init", str(stage1), "-o", str(stage2)]
+    )
+    assert other.exit_code == 2 and "structure" in other.output

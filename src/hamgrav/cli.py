@@ -9,6 +9,7 @@ from __future__ import annotations
 import inspect
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -162,6 +163,12 @@ def _model_option(model: str) -> tuple[str, int]:
     raise InputError(f"--model must be 'network' or 'sh:L' with L >= 2 (e.g. sh:8), got {model!r}")
 
 
+def _stage_of(solver: dict) -> dict:
+    """The stage record of a fit from its model file's solver entry."""
+    keys = ("n_arcs", "n_validation", "solver", "outcome", "iterations", "cost", "wall_s")
+    return {k: solver.get(k) for k in keys} | {"arcs_file": solver.get("arcs_file")}
+
+
 @app.command()
 def fit(
     arcs_file: Annotated[Path, typer.Argument(metavar="ARCS", help="Arcs file (HDF5).")],
@@ -179,7 +186,13 @@ def fit(
         str | None,
         typer.Option(help="Kaula weight ALPHA, or 'scan' (1e-8..1e-4, best 1.05 R_B field error)."),
     ] = None,
-    init: Annotated[Path | None, typer.Option(help="Warm start from this model file.")] = None,
+    init: Annotated[
+        Path | None,
+        typer.Option(
+            help="Continue this model (same structure) on ARCS, which should hold all the arcs "
+            "so far: a continual stage, recorded in the model file's stage history."
+        ),
+    ] = None,
     steps: Annotated[int, typer.Option(help="Adam steps.")] = 1500,
     learning_rate: Annotated[float, typer.Option(help="Adam peak learning rate.")] = 1e-2,
     seed: Annotated[int, typer.Option(help="Seed (initialisation, split, batches).")] = 0,
@@ -232,9 +245,12 @@ def fit(
             seed=seed,
             body=body_obj,
         )
-        theta0, resume_state = None, None
+        theta0, resume_state, stages = None, None, []
         if init is not None:
-            theta0 = load_model(init, expect_body=arcs.body_name).params
+            structure = estimator.build_model(arcs)[0].key()
+            previous = load_model(init, expect_body=arcs.body_name, expect_structure=structure)
+            theta0 = previous.params
+            stages = previous.stages or [{"stage": 0, **_stage_of(previous.solver)}]
         if resume:
             if not ckpt.exists():
                 raise InputError(f"no checkpoint {ckpt} to resume from; run without --resume")
@@ -256,6 +272,9 @@ def fit(
             )
         fitted = estimator.fitted_
         fitted.solver["arcs_file"] = str(arcs_file)
+        if init is not None:
+            this = {"stage": len(stages), **_stage_of(fitted.solver), "warm_started": True}
+            fitted = replace(fitted, stages=[*stages, this])
         save_model(fitted, output)
         ckpt.unlink(missing_ok=True)
     except KeyboardInterrupt:

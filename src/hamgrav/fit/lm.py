@@ -49,7 +49,8 @@ class LevenbergMarquardt(Solver):
     (0: no regularisation). ``damping_floor`` > 0 floors the Marquardt scaling diag(A^T A) at
     that fraction of its largest entry, so that parameters the data barely see (weights of
     saturated tanh units, diag ~ 1e-50) are damped too. With validation arcs and
-    ``patience``, the fit stops once the best validation cost is ``patience`` iterations old.
+    ``patience``, the fit stops after ``patience`` accepted steps in a row that do not lower
+    the best validation cost (rejected trials leave the iterate unchanged and do not count).
     """
 
     lambda0: float = 1e-6
@@ -88,6 +89,7 @@ class LevenbergMarquardt(Solver):
             history["validation"] = [problem.cost(theta, validation)]
             best = (history["validation"][0], theta.copy(), 0)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
+        stale = 0  # accepted steps since the best validation cost
         for it in range(1, self.max_iter + 1):
             scaling = np.diag(ata)
             if self.damping_floor > 0:
@@ -117,16 +119,18 @@ class LevenbergMarquardt(Solver):
                 val = problem.cost(theta, validation) if accepted else history["validation"][-1]
                 history["validation"].append(val)
                 if val < best[0]:
-                    best = (val, theta.copy(), it)
+                    best, stale = (val, theta.copy(), it), 0
+                elif accepted:
+                    stale += 1
             if callback is not None:
                 callback(it, {k: v[-1] for k, v in history.items()})
             if accepted and rel < self.rtol:
                 outcome = Outcome.CONVERGED
                 message = f"relative cost change {rel:.2e} < {self.rtol:g}"
                 break
-            if has_val and self.patience is not None and it - best[2] >= self.patience:
+            if has_val and self.patience is not None and stale >= self.patience:
                 outcome = Outcome.CONVERGED
-                message = f"validation cost not lowered for {self.patience} iterations"
+                message = f"validation cost not lowered by {self.patience} accepted steps"
                 break
             if lam > self.lambda_ceiling:
                 outcome = Outcome.DAMPING_SATURATED
