@@ -155,3 +155,27 @@ def test_kaula_scan_on_a_dask_client_equals_builtin_map(sh_world):
         )
     assert mapped[0] == serial[0] and mapped[2] == serial[2]
     assert np.array_equal(mapped[1].params, serial[1].params)
+
+
+def test_continual_stages_never_train_on_validation_arcs(small_arcs, synthetic_truth):
+    """Arcs held out at a stage stay held out at every later stage, and the warm-started
+    fit's training arcs never include them."""
+    stages = [np.arange(0, 5), np.arange(5, 9)]
+    trained = []
+
+    class Spy(LevenbergMarquardt):
+        def _iterate(self, problem, theta, train, validation, *rest):
+            trained.append((problem.arcs, train, validation))
+            return super()._iterate(problem, theta, train, validation, *rest)
+
+    est = GravityEstimator(
+        "sh", degree=2, validation_fraction=0.25, solver=Spy(max_iter=3), body=synthetic_truth.body
+    )
+    records = fit_continual(est, small_arcs, stages)
+    assert records[1].warm_started
+    assert set(records[0].validation) <= set(records[1].validation)
+    assert len(records[0].validation) == 1 and len(records[1].validation) == 2
+    for record, (arcs, train, validation) in zip(records, trained, strict=True):
+        assert np.array_equal(record.arcs[validation], record.validation)
+        assert not set(record.arcs[train]) & set(record.validation)
+        assert np.array_equal(arcs.times, small_arcs.times[record.arcs])
