@@ -120,3 +120,25 @@ def test_a_fit_that_learns_says_so(small_arcs, synthetic_truth):
     assert diag["improved"] and diag["relative_cost"] < 0.1
     assert diag["constrained_parameters"] == 5 == diag["n_params"]
     assert est.result_.outcome.value == "converged"
+
+
+def test_restarts_keep_the_lowest_held_out_cost(small_arcs, synthetic_truth):
+    settings = {"term": "network", "hidden": (4,), "solver": LevenbergMarquardt(max_iter=3)}
+    held_out = np.array([2, 6])
+    one = [
+        GravityEstimator(body=synthetic_truth.body, seed=s, **settings).fit(
+            small_arcs, validation=held_out
+        )
+        for s in (7, 8)
+    ]
+    both = GravityEstimator(body=synthetic_truth.body, seed=7, restarts=2, **settings)
+    both.fit(small_arcs, validation=held_out)
+    tried = both.fitted_.solver["restarts"]["tried"]
+    assert [t["init_seed"] for t in tried] == [7, 8]
+    problem = ArcProblem(both.model_, small_arcs)
+    costs = [problem.cost(e.params_, held_out) for e in one]
+    assert costs[0] != costs[1]
+    assert [t["cost"] for t in tried] == pytest.approx(costs, rel=1e-12)
+    k = int(np.argmin(costs))
+    assert both.fitted_.solver["restarts"]["chosen_init_seed"] == 7 + k
+    assert np.array_equal(both.params_, one[k].params_)
