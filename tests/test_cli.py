@@ -132,7 +132,19 @@ def test_fit_network_writes_model(arcs_file, tmp_path):
 
     model = tmp_path / "nn.h5"
     result = runner.invoke(
-        app, ["fit", str(arcs_file), "--hidden", "8", "--steps", "4", "-o", str(model)]
+        app,
+        [
+            "fit",
+            str(arcs_file),
+            "--model",
+            "network",
+            "--hidden",
+            "8",
+            "--steps",
+            "4",
+            "-o",
+            str(model),
+        ],
     )
     assert result.exit_code == 0, result.output
     fitted = load_model(model, expect_body="synthetic")
@@ -143,7 +155,7 @@ def test_fit_network_writes_model(arcs_file, tmp_path):
 def test_fit_rejects_bad_options(arcs_file, tmp_path):
     out = tmp_path / "m.h5"
     result = runner.invoke(app, ["fit", str(arcs_file), "--model", "sh:1", "-o", str(out)])
-    assert result.exit_code == 2 and "--model must be 'network' or 'sh:L'" in result.output
+    assert result.exit_code == 2 and "--model must be one of network, network-best" in result.output
     result = runner.invoke(app, ["fit", str(arcs_file), "--kaula", "1e-6", "-o", str(out)])
     assert result.exit_code == 2 and "--kaula applies to spherical-harmonics" in result.output
     result = runner.invoke(app, ["fit", str(arcs_file), "--resume", "-o", str(out)])
@@ -201,7 +213,7 @@ def test_fit_resume_after_interrupt(arcs_file, tmp_path, monkeypatch):
     from hamgrav.io import models
     from hamgrav.io.models import load_model
 
-    args = ["fit", str(arcs_file), "--hidden", "4", "--steps", "30"]
+    args = ["fit", str(arcs_file), "--model", "network", "--hidden", "4", "--steps", "30"]
     full = tmp_path / "full.h5"
     assert runner.invoke(app, [*args, "-o", str(full)]).exit_code == 0
     out = tmp_path / "resumed.h5"
@@ -272,3 +284,15 @@ def test_fit_init_continues_a_model_as_a_stage(small_arcs, tmp_path):
         app, ["fit", str(everything), "--model", "sh:2", "--init", str(stage1), "-o", str(stage2)]
     )
     assert other.exit_code == 2 and "structure" in other.output
+
+
+def test_fit_default_is_network_best(arcs_file, tmp_path):
+    from hamgrav.io.models import load_model
+
+    out = tmp_path / "best.h5"
+    result = runner.invoke(app, ["fit", str(arcs_file), "--hidden", "4", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    solver = load_model(out).solver
+    assert solver["name"] == "levenberg-marquardt" and solver["damping_floor"] == 1e-6
+    assert [t["init_seed"] for t in solver["restarts"]["tried"]] == [0, 1]
+    assert "parameter directions constrained" in result.output

@@ -155,12 +155,18 @@ def simulate(
     )
 
 
-def _model_option(model: str) -> tuple[str, int]:
-    if model == "network":
-        return "network", 0
+def _model_option(model: str) -> dict:
+    """Estimator settings of a --model value: a named configuration or sh:L."""
+    from .fit.estimator import PRESETS, preset
+
+    if model in PRESETS:
+        return preset(model)
     if model.startswith("sh:") and model[3:].isdigit() and int(model[3:]) >= 2:
-        return "sh", int(model[3:])
-    raise InputError(f"--model must be 'network' or 'sh:L' with L >= 2 (e.g. sh:8), got {model!r}")
+        return {"term": "sh", "degree": int(model[3:])}
+    raise InputError(
+        f"--model must be one of {', '.join(PRESETS)} or 'sh:L' with L >= 2 (e.g. sh:8), "
+        f"got {model!r}"
+    )
 
 
 def _stage_of(solver: dict) -> dict:
@@ -173,7 +179,13 @@ def _stage_of(solver: dict) -> dict:
 def fit(
     arcs_file: Annotated[Path, typer.Argument(metavar="ARCS", help="Arcs file (HDF5).")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Model file to write.")],
-    model: Annotated[str, typer.Option(help="'network' or 'sh:L'.")] = "network",
+    model: Annotated[
+        str,
+        typer.Option(
+            help="'network-best' (LM, 2 initialisations: recommended), 'network' (the paper's "
+            "Adam protocol) or 'sh:L'."
+        ),
+    ] = "network-best",
     hidden: Annotated[str, typer.Option(help="Hidden layer sizes of the network.")] = "24,24",
     prior: Annotated[
         str | None, typer.Option(help="'shape': constant-density shape prior in the known part.")
@@ -193,7 +205,7 @@ def fit(
             "so far: a continual stage, recorded in the model file's stage history."
         ),
     ] = None,
-    steps: Annotated[int, typer.Option(help="Adam steps.")] = 1500,
+    steps: Annotated[int, typer.Option(help="Adam steps (--model network).")] = 1500,
     learning_rate: Annotated[float, typer.Option(help="Adam peak learning rate.")] = 1e-2,
     seed: Annotated[int, typer.Option(help="Seed (initialisation, split, batches).")] = 0,
     resume: Annotated[
@@ -219,7 +231,8 @@ def fit(
 
     ckpt = checkpoint_path_for(output)
     try:
-        term, degree = _model_option(model)
+        settings = _model_option(model)
+        term = settings["term"]
         hidden_sizes = tuple(int(h) for h in _floats(hidden, "--hidden"))
         if prior not in (None, "shape"):
             raise InputError(f"--prior must be 'shape', got {prior!r}")
@@ -231,17 +244,17 @@ def fit(
         arcs = load_arcs(arcs_file)
         output.parent.mkdir(parents=True, exist_ok=True)
         body_obj = body_for_arcs(arcs)
+        if solver is not None:  # a solver by name replaces the configuration's
+            settings = {**settings, "solver": solver, "restarts": 1}
+        if term == "network":
+            settings = {**settings, "hidden": hidden_sizes}
+        settings |= {"adam_steps": steps, "learning_rate": learning_rate}
         estimator = GravityEstimator(
-            term,
-            hidden=hidden_sizes,
-            degree=degree,
+            **settings,
             prior=prior,
-            solver=solver,
             weighted=weighted,
             kaula=kaula_value,
             kaula_metric=truth_shell_metric(arcs, body_obj) if kaula_value == "scan" else None,
-            adam_steps=steps,
-            learning_rate=learning_rate,
             seed=seed,
             body=body_obj,
         )
