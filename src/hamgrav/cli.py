@@ -526,6 +526,20 @@ def _experiment_command(experiment):
     return command
 
 
+@experiment_app.command("readme")
+def experiment_readme(
+    folder: Annotated[Path, typer.Argument(help="A results folder holding results.json.")],
+) -> None:
+    """Write a results folder's README.md again from its results.json (no computation)."""
+    from .experiments.runner import rerender_readme
+
+    try:
+        path = rerender_readme(folder)
+    except HamgravError as exc:
+        _fail(exc)
+    console.print(f"wrote {path}")
+
+
 def _register_experiments() -> None:
     from .experiments.runner import experiment_names, get_experiment
 

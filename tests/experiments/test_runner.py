@@ -129,3 +129,18 @@ def test_single_run_maps_its_own_work_over_the_cluster(tmp_path):
     b = _without_timing(cluster["repetitions"][0])
     assert a["d_optimal"] == b["d_optimal"]
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def test_readme_rendered_again_from_results(tmp_path):
+    from typer.testing import CliRunner
+
+    from hamgrav.cli import app
+
+    run_experiment("descent", TINY, seed=0, output=tmp_path, command="cmd", verbose=False)
+    first = (tmp_path / "README.md").read_text()
+    (tmp_path / "README.md").unlink()
+    result = CliRunner().invoke(app, ["experiment", "readme", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "README.md").read_text() == first
+    missing = CliRunner().invoke(app, ["experiment", "readme", str(tmp_path / "none")])
+    assert missing.exit_code == 2 and "no results.json" in missing.output

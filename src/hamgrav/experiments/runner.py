@@ -41,6 +41,7 @@ __all__ = [
     "experiment_names",
     "run_unit",
     "run_experiment",
+    "rerender_readme",
     "aggregate",
     "dask_client",
     "format_range",
@@ -162,8 +163,21 @@ def run_unit(
     )
     start = time.perf_counter()
     out = experiment.run(cfg, ctx)
-    result = {**out.result, "seed": int(seed), "wall_s": round(time.perf_counter() - start, 1)}
+    result = {
+        **out.result,
+        "seed": int(seed),
+        "wall_s": round(time.perf_counter() - start, 1),
+        "peak_memory_mb": _peak_memory_mb(),
+    }
     return RunOutput(result, out.artefacts)
+
+
+def _peak_memory_mb() -> float:
+    """Peak resident memory of this process so far [MB] (the worker's, on a cluster)."""
+    import resource
+
+    kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    return round(kib / 1024.0, 1)
 
 
 @contextlib.contextmanager
@@ -321,10 +335,34 @@ def run_experiment(
 def write_report(experiment: Experiment, report: dict, artefacts: dict, folder: Path) -> None:
     """results.json, README.md and the figures of ``report`` into ``folder``."""
     folder.mkdir(parents=True, exist_ok=True)
-    write_json(folder / "results.json", report)
     figures = experiment.figures(report, artefacts)
+    report["figures"] = list(figures)
+    write_json(folder / "results.json", report)
     for name, fig in figures.items():
         save_figure(fig, folder / name)
+    write_readme(experiment, report, folder)
+
+
+def rerender_readme(folder: str | Path) -> Path:
+    """Write README.md again from the results.json in ``folder`` (no computation)."""
+    import json
+
+    folder = Path(folder)
+    path = folder / "results.json"
+    if not path.is_file():
+        raise InputError(f"no results.json in {folder}; run the experiment first")
+    try:
+        report = json.loads(path.read_text())
+        experiment = get_experiment(report["experiment"])
+    except (ValueError, KeyError) as exc:
+        raise InputError(f"{path} is not an experiment's results ({exc})") from None
+    write_readme(experiment, report, folder)
+    return folder / "README.md"
+
+
+def write_readme(experiment: Experiment, report: dict, folder: Path) -> None:
+    """README.md of ``report`` (its tables, the command, the configuration) into ``folder``."""
+    figures = report.get("figures", [])
     n = len(report["repetitions"])
     header = [
         f"# {experiment.title}",
