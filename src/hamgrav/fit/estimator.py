@@ -51,9 +51,9 @@ TERMS = ("network", "sh", "none")
 
 #: The network fit hamgrav recommends (preset "network-best", from two seeded initialisations):
 #: 30 Levenberg-Marquardt iterations with the damping scale floored (weights of tanh units the
-#: arcs barely see are damped too), returning the best validation iterate. Chosen by
-#: measurement: stopping on a validation plateau stopped some draws early, and one
-#: initialisation of seed 4 stalls at r1.2 0.36 where the next reaches 0.10.
+#: arcs barely see are damped too), returning the best validation iterate. Measured over 8
+#: draws in results/descent-itokawa-x8: r1.2 0.09-0.20 in 7 of them, 0.36 in one (seed 4);
+#: stopping on a validation plateau, also tried, stopped some draws early.
 NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=30, rtol=1e-9, lambda0=1e-2, damping_floor=1e-6)
 #: Warm-started continual stages start near the optimum: they stop after 3 accepted steps
 #: that do not lower the validation cost.
