@@ -590,7 +590,7 @@ def demo(
     result = report["repetitions"][0]
     table = Table(title="synthetic contact binary: fitted models (from tracking alone)")
     for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):
-        table.add_column(escape(col), justify="right")
+        table.add_column(escape(col), justify="right", no_wrap=col == "model")
     for name, st in result["models"].items():
         fe = result["field_error"][name]
         cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "worst_m")]
