@@ -293,6 +293,6 @@ def test_fit_default_is_network_best(arcs_file, tmp_path):
     result = runner.invoke(app, ["fit", str(arcs_file), "--hidden", "4", "-o", str(out)])
     assert result.exit_code == 0, result.output
     solver = load_model(out).solver
-    assert solver["name"] == "levenberg-marquardt" and solver["damping_floor"] == 1e-6
+    assert solver["name"] == "levenberg-marquardt" and solver["damping_floor"] == 1e-8
     assert [t["init_seed"] for t in solver["restarts"]["tried"]] == [0, 1]
     assert "parameter directions constrained" in result.output

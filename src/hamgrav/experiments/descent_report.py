@@ -46,7 +46,7 @@ def descent_readme(report: dict, paper: dict) -> list[str]:
         "",
         "`network` is the paper's protocol (Adam, unweighted cost, 12 % hold-out);",
         "`network-best` is the same network fitted by hamgrav's recommended configuration",
-        "(30 Levenberg-Marquardt iterations with the damping scale floored at 1e-6 of its",
+        "(30 Levenberg-Marquardt iterations with the damping scale floored at 1e-8 of its",
         "largest entry, from two seeded initialisations, the lower validation cost kept) on the",
         "same arcs with the same hold-out. Relative field error (1 = no correction) on shells",
         f"(r, in R_B) and on the {cfg['altitude_m']:g} m surface-following set:",
