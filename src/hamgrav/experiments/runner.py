@@ -57,6 +57,10 @@ class RunOutput:
     artefacts: dict = field(default_factory=dict)
 
 
+def _silent(text: str) -> None:
+    """Discard a progress line."""
+
+
 @dataclass(frozen=True, eq=False)
 class RunContext:
     """Everything a repetition uses besides its config, as plain values: its ``seed``, the
@@ -66,7 +70,7 @@ class RunContext:
 
     seed: int
     bodies_folder: str | None = None
-    say: Callable[[str], None] = field(default=lambda text: None)
+    say: Callable[[str], None] = _silent
     mapper: Callable = map
 
 
@@ -158,7 +162,7 @@ def run_unit(
     ctx = RunContext(
         seed=int(seed),
         bodies_folder=bodies_folder,
-        say=_stderr_say(prefix) if verbose else (lambda text: None),
+        say=_stderr_say(prefix) if verbose else _silent,
         mapper=_cluster_map if nested else map,
     )
     start = time.perf_counter()
