@@ -142,3 +142,5 @@ def test_restarts_keep_the_lowest_held_out_cost(small_arcs, synthetic_truth):
     k = int(np.argmin(costs))
     assert both.fitted_.solver["restarts"]["chosen_init_seed"] == 7 + k
     assert np.array_equal(both.params_, one[k].params_)
+    # the fit's wall time is that of every initialisation
+    assert both.result_.wall_s == pytest.approx(sum(t["wall_s"] for t in tried), rel=1e-12)
