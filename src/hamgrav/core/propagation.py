@@ -83,7 +83,9 @@ def propagate_batch(
 
     ``runtime_params`` (n_system_params, n) holds each trajectory's runtime parameters (see
     :mod:`hamgrav.core.model`). Trajectories go in SIMD batches (the last batch padded by
-    repeating its last member) shared out over ``threads`` copies of the compiled integrator.
+    repeating its last member) shared out over ``threads`` copies of the compiled integrator
+    (heyoka's ``ensemble_propagate_grid_batch`` would copy the integrator once per batch on
+    every call; these copies are made once per process and kept in the compile cache).
     ``max_steps`` caps the Taylor steps per batch (None: no cap).
     """
     states0 = np.asarray(states0, dtype=float)
@@ -212,6 +214,7 @@ def propagate_to_contact(
     escape_radius: float,
     contact_tol: float,
     t0: float = 0.0,
+    bound_radius: float | None = None,
     max_steps_per_chunk: int = 20_000,
     tol: float = DEFAULT_FIT_TOLERANCE,
 ) -> Touchdown:
@@ -222,9 +225,12 @@ def propagate_to_contact(
     samples within the surface's bounding radius are tested); the contact time is then refined
     by bisection to ``contact_tol``. Leaving ``escape_radius``, a non-finite state or more than
     ``max_steps_per_chunk`` Taylor steps per 200 samples stops the descent as "escaped" or
-    "diverged"; reaching ``t0 + duration`` as "timed out".
+    "diverged"; reaching ``t0 + duration`` as "timed out". ``bound_radius`` (the largest
+    distance of the surface from the origin) is computed from ``triangles`` when not given.
     """
-    r_bound = float(np.linalg.norm(np.asarray(triangles).reshape(-1, 3), axis=1).max())
+    r_bound = bound_radius
+    if r_bound is None:
+        r_bound = float(np.linalg.norm(np.asarray(triangles).reshape(-1, 3), axis=1).max())
     compiled = compiled_integrators(model, batch=False, tol=tol)
     t_end = t0 + duration
     grid = np.arange(t0, t_end + check_step, check_step)

@@ -14,8 +14,8 @@ from ..core.arcs import Arcs
 from ..core.fields import field_errors
 from ..errors import InputError
 from ..fit.estimator import GravityEstimator
-from ..sim.campaign import Campaign, build_campaign_truth
-from ..sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
+from ..sim.campaign import Campaign, run_campaign
+from ..sim.tracking import TrackingConfig, orbit_grid
 from .config import ExperimentConfig, option
 from .runner import RunContext
 
@@ -57,11 +57,7 @@ class CampaignConfig(ExperimentConfig):
 def simulate(config: CampaignConfig, ctx: RunContext) -> tuple[Truth, Arcs]:
     """The truth and its simulated arcs for ``config`` at the context's seed."""
     start = time.perf_counter()
-    campaign = config.campaign(ctx.seed)
-    truth = build_campaign_truth(campaign, folder=ctx.bodies_folder)
-    arcs = simulate_orbits(
-        truth, list(campaign.families), campaign.tracking, seed=ctx.seed, config=campaign.as_dict()
-    )
+    truth, arcs = run_campaign(config.campaign(ctx.seed), folder=ctx.bodies_folder)
     ctx.say(f"truth and {arcs.n_arcs} arcs in {time.perf_counter() - start:.1f} s")
     return truth, arcs
 

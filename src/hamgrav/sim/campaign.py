@@ -33,7 +33,7 @@ from ..errors import InputError
 from ..io.files import read_toml
 from .tracking import OrbitFamily, TrackingConfig, orbit_grid, simulate_orbits
 
-__all__ = ["CampaignError", "Campaign", "load_campaign", "simulate_campaign"]
+__all__ = ["CampaignError", "Campaign", "load_campaign", "run_campaign", "simulate_campaign"]
 
 
 class CampaignError(InputError):
@@ -138,10 +138,11 @@ def build_campaign_truth(campaign: Campaign, folder=None) -> Truth:
     return build_truth(body, campaign.interior, n_mascons=campaign.n_mascons, seed=campaign.seed)
 
 
-def simulate_campaign(campaign: Campaign, progress=None) -> Arcs:
-    """Build the truth and simulate the campaign's tracking."""
-    truth = build_campaign_truth(campaign)
-    return simulate_orbits(
+def run_campaign(campaign: Campaign, progress=None, folder=None) -> tuple[Truth, Arcs]:
+    """The campaign's truth (see :func:`build_campaign_truth`) and its simulated tracking;
+    ``progress(done, total)`` is called after each orbit."""
+    truth = build_campaign_truth(campaign, folder=folder)
+    arcs = simulate_orbits(
         truth,
         list(campaign.families),
         campaign.tracking,
@@ -149,3 +150,9 @@ def simulate_campaign(campaign: Campaign, progress=None) -> Arcs:
         progress=progress,
         config=campaign.as_dict(),
     )
+    return truth, arcs
+
+
+def simulate_campaign(campaign: Campaign, progress=None) -> Arcs:
+    """Build the truth and simulate the campaign's tracking (the arcs of :func:`run_campaign`)."""
+    return run_campaign(campaign, progress)[1]

@@ -83,6 +83,7 @@ def descend(
         "duration": float(units.to_time(config.max_duration_s)),
         "escape_radius": config.escape_radius_rb * body.brillouin_radius,
         "contact_tol": float(units.to_time(config.contact_tol_s)),
+        "bound_radius": body.brillouin_radius,
     }
     params = np.asarray(params, dtype=float)[: model.n_system_params]
     return [
