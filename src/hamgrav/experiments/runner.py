@@ -360,6 +360,8 @@ def rerender_readme(folder: str | Path) -> Path:
         experiment = get_experiment(report["experiment"])
     except (ValueError, KeyError) as exc:
         raise InputError(f"{path} is not an experiment's results ({exc})") from None
+    # results written before figure names were recorded: the PNG files beside them
+    report.setdefault("figures", sorted(p.name for p in folder.glob("*.png")))
     write_readme(experiment, report, folder)
     return folder / "README.md"
 
