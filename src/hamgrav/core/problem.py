@@ -184,10 +184,12 @@ class ArcProblem:
         idx = self._indices(arc_indices)
         pred = self.predict(theta, idx, sensitivities=True)
         r = self.arcs.states[idx] - pred.states
-        a = -pred.jacobian
+        # in place: the prediction's arrays are this call's own, and A is the largest array
+        # of a fit (chunk x samples x 6 x n_params)
+        a = np.negative(pred.jacobian, out=pred.jacobian)
         if self.weights is not None:
             r = r * self.weights
-            a = a * self.weights[:, None]
+            a *= self.weights[:, None]
         return r.reshape(-1), a.reshape(-1, self.n_params)
 
     def normal_equations(self, theta, arc_indices=None, chunk: int = 64):

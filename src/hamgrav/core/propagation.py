@@ -103,8 +103,9 @@ def propagate_batch(
     chunks = [np.arange(i, min(i + width, n)) for i in range(0, n, width)]
     n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(chunks)))
 
-    states = np.full((n, n_m, 6), np.nan)
-    jac = np.full((n, n_m, 6, n_sys), np.nan) if variational else None
+    # rows of trajectories that fail are set to NaN below; the others are written whole
+    states = np.empty((n, n_m, 6))
+    jac = np.empty((n, n_m, 6, n_sys)) if variational else None
     ok = np.zeros(n, bool)
     exceeded = np.zeros(n, bool)
 
