@@ -294,5 +294,5 @@ def test_fit_default_is_network_best(arcs_file, tmp_path):
     assert result.exit_code == 0, result.output
     solver = load_model(out).solver
     assert solver["name"] == "levenberg-marquardt" and solver["damping_floor"] == 1e-8
-    assert [t["init_seed"] for t in solver["restarts"]["tried"]] == [0, 1]
+    assert [m["init_seed"] for m in solver["members"]] == [0, 1, 2]
     assert "parameter directions constrained" in result.output

@@ -58,6 +58,29 @@ def test_network_layout_matches_numpy():
     assert np.allclose(v, 0.1 * out / r**3, rtol=1e-13)
 
 
+def test_ensemble_is_the_mean_of_its_members():
+    from hamgrav.core.terms import term_from_description
+
+    ens = NeuralPotential((5, 4), members=3)
+    one = ens.member()
+    assert ens.n_params == 3 * one.n_params and ens.member_params == one.n_params
+    theta = np.random.default_rng(4).normal(size=ens.n_params)
+    blocks = ens.split_members(theta)
+    pts = np.array([[1.1, -0.4, 0.3], [0.2, 0.9, -1.5], [-2.0, 0.1, 0.4]])
+    v, a = evaluate_field(Model((PointMass(),), ens), theta, pts)
+    each = [evaluate_field(Model((PointMass(),), one), b, pts) for b in blocks]
+    assert np.allclose(v, np.mean([e[0] for e in each], axis=0), rtol=1e-13)
+    assert np.allclose(a, np.mean([e[1] for e in each], axis=0), rtol=1e-13)
+    # member k starts where a single network seeded seed + k starts
+    init = ens.initial_params(5)
+    assert all(
+        np.array_equal(b, one.initial_params(5 + k)) for k, b in enumerate(ens.split_members(init))
+    )
+    assert ens.key() != one.key() and term_from_description(ens.describe()) == ens
+    with pytest.raises(ValueError, match="at least one member"):
+        NeuralPotential((4,), members=0)
+
+
 def test_network_potential_decays_as_r_cubed():
     nn = NeuralPotential((16, 16))
     theta = nn.initial_params(5)

@@ -122,7 +122,7 @@ def test_a_fit_that_learns_says_so(small_arcs, synthetic_truth):
     assert est.result_.outcome.value == "converged"
 
 
-def test_restarts_keep_the_lowest_held_out_cost(small_arcs, synthetic_truth):
+def test_an_ensemble_is_the_mean_of_members_fitted_on_their_own(small_arcs, synthetic_truth):
     settings = {"term": "network", "hidden": (4,), "solver": LevenbergMarquardt(max_iter=3)}
     held_out = np.array([2, 6])
     one = [
@@ -131,16 +131,45 @@ def test_restarts_keep_the_lowest_held_out_cost(small_arcs, synthetic_truth):
         )
         for s in (7, 8)
     ]
-    both = GravityEstimator(body=synthetic_truth.body, seed=7, restarts=2, **settings)
+    both = GravityEstimator(body=synthetic_truth.body, seed=7, members=2, **settings)
     both.fit(small_arcs, validation=held_out)
-    tried = both.fitted_.solver["restarts"]["tried"]
-    assert [t["init_seed"] for t in tried] == [7, 8]
-    problem = ArcProblem(both.model_, small_arcs)
-    costs = [problem.cost(e.params_, held_out) for e in one]
-    assert costs[0] != costs[1]
-    assert [t["cost"] for t in tried] == pytest.approx(costs, rel=1e-12)
-    k = int(np.argmin(costs))
-    assert both.fitted_.solver["restarts"]["chosen_init_seed"] == 7 + k
-    assert np.array_equal(both.params_, one[k].params_)
-    # the fit's wall time is that of every initialisation
-    assert both.result_.wall_s == pytest.approx(sum(t["wall_s"] for t in tried), rel=1e-12)
+    members = both.fitted_.solver["members"]
+    assert [m["init_seed"] for m in members] == [7, 8]
+    # each member is exactly the single fit from its seed
+    assert np.array_equal(both.params_, np.concatenate([e.params_ for e in one]))
+    assert not np.array_equal(one[0].params_, one[1].params_)
+    # and the ensemble's potential is their mean
+    points = np.array([[1.5, 0.2, -0.3], [0.1, -2.0, 0.7]])
+    mean = np.mean([e.field(points)[1] for e in one], axis=0)
+    assert np.allclose(both.field(points)[1], mean, rtol=1e-12, atol=0)
+    assert both.result_.iterations == sum(e.result_.iterations for e in one)
+    assert both.result_.wall_s >= sum(m["wall_s"] for m in members) * 0.999
+    ranks = [e.diagnostics_["constrained_parameters"] for e in one]
+    assert both.diagnostics_["constrained_parameters_per_member"] == ranks
+    assert both.diagnostics_["n_params"] == 2 * one[0].diagnostics_["n_params"]
+
+
+def test_an_ensemble_warm_starts_each_member_from_its_block(small_arcs, synthetic_truth):
+    settings = {"term": "network", "hidden": (4,), "solver": LevenbergMarquardt(max_iter=2)}
+    held_out = np.array([2, 6])
+    first = GravityEstimator(body=synthetic_truth.body, seed=3, members=2, **settings)
+    first.fit(small_arcs.subset(np.arange(6)), validation=held_out[:1])
+    again = GravityEstimator(body=synthetic_truth.body, seed=3, members=2, **settings)
+    again.fit(small_arcs, init=first.params_, validation=held_out)
+    single = GravityEstimator(body=synthetic_truth.body, seed=3, **settings)
+    half = first.params_.size // 2
+    single.fit(small_arcs, init=first.params_[half:], validation=held_out)
+    assert np.array_equal(again.params_[half:], single.params_)
+
+
+def test_an_ensemble_cannot_estimate_per_trajectory_parameters(small_arcs, synthetic_truth):
+    from hamgrav.core.terms import SolarRadiationPressure
+
+    est = GravityEstimator(
+        body=synthetic_truth.body,
+        members=2,
+        per_trajectory=(SolarRadiationPressure(1e-3),),
+        estimate_trajectory_params=True,
+    )
+    with pytest.raises(InputError, match="members=1"):
+        est.fit(small_arcs)

@@ -13,7 +13,8 @@ one of three kinds:
 Parameter layouts:
 
 - :class:`NeuralPotential`: heyoka ``model.ffnn`` order: all weight matrices layer by layer,
-  row-major (output x input), then all biases layer by layer.
+  row-major (output x input), then all biases layer by layer; an ensemble's members follow
+  one another.
 - :class:`SphericalHarmonics`: for l = 2..L, m = 0..l: C_lm, then S_lm when m > 0.
 - :class:`SolarRadiationPressure`: one area-to-mass coefficient [m^2/kg] per trajectory.
 """
@@ -130,46 +131,71 @@ class NeuralPotential(Term):
 
     The envelope imposes the 1/r^3 decay of the slowest-fading (quadrupole) part of a
     perturbing potential and removes the additive-constant degeneracy of the last bias.
-    Initialisation (seeded): Glorot-uniform weights, zero biases.
+    With ``members`` = K > 1 the term is an ensemble: NN is the mean of K networks of the same
+    shape, each with its own parameters (member-major: member 0's block, then member 1's...).
+    Initialisation (seeded): Glorot-uniform weights, zero biases; member k uses seed + k.
     """
 
     hidden: tuple[int, ...] = (24, 24)
     scale: float = 0.1
     envelope_radius: float = 1.0
+    members: int = 1
 
     def __post_init__(self) -> None:
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
             raise ValueError(f"hidden layer sizes must be positive, got {self.hidden!r}")
+        if int(self.members) < 1:
+            raise ValueError(f"an ensemble needs at least one member, got {self.members!r}")
         object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
+        object.__setattr__(self, "members", int(self.members))
 
     @property
     def layer_sizes(self) -> tuple[int, ...]:
-        """Layer widths, input (3: x, y, z) to output (1)."""
+        """Layer widths of one member, input (3: x, y, z) to output (1)."""
         return (3, *self.hidden, 1)
 
     @property
     def n_weights(self) -> int:
-        """Number of weights (the first block of the parameter layout)."""
+        """Number of weights of one member (the first block of its parameter layout)."""
         s = self.layer_sizes
         return sum(s[i] * s[i + 1] for i in range(len(s) - 1))
 
     @property
-    def n_params(self) -> int:  # type: ignore[override]
-        """Weights plus biases."""
+    def member_params(self) -> int:
+        """Weights plus biases of one member."""
         return self.n_weights + sum(self.layer_sizes[1:])
 
+    @property
+    def n_params(self) -> int:  # type: ignore[override]
+        """Parameters of all members."""
+        return self.members * self.member_params
+
+    def member(self) -> NeuralPotential:
+        """One member of the ensemble as a network of its own."""
+        return NeuralPotential(self.hidden, self.scale, self.envelope_radius)
+
+    def split_members(self, params: np.ndarray) -> list[np.ndarray]:
+        """The members' parameter blocks of ``params`` (n_params,)."""
+        params = np.asarray(params, dtype=float)
+        if params.shape != (self.n_params,):
+            raise ValueError(f"expected {self.n_params} parameters, got {params.shape}")
+        return list(params.reshape(self.members, self.member_params))
+
     def network(self, offset: int = 0) -> hy.expression:
-        """NN(x, y, z), dimensionless, its parameters at ``par[offset:]``."""
-        pars = [hy.par[offset + i] for i in range(self.n_params)]
+        """NN(x, y, z), dimensionless (the members' mean), parameters at ``par[offset:]``."""
         activations = [hy.tanh] * len(self.hidden) + [lambda e: e]
-        (out,) = hy.model.ffnn(
-            inputs=[x, y, z],
-            nn_hidden=list(self.hidden),
-            n_out=1,
-            activations=activations,
-            nn_wb=pars,
-        )
-        return out
+        outputs = []
+        for k in range(self.members):
+            first = offset + k * self.member_params
+            (out,) = hy.model.ffnn(
+                inputs=[x, y, z],
+                nn_hidden=list(self.hidden),
+                n_out=1,
+                activations=activations,
+                nn_wb=[hy.par[first + i] for i in range(self.member_params)],
+            )
+            outputs.append(out)
+        return outputs[0] if self.members == 1 else hy.sum(outputs) / self.members
 
     def potential(self, offset: int = 0) -> hy.expression:
         r2 = x * x + y * y + z * z
@@ -177,21 +203,25 @@ class NeuralPotential(Term):
         return self.scale * envelope * self.network(offset)
 
     def initial_params(self, seed: int = 0) -> np.ndarray:
-        """Glorot-uniform weights (seeded), zero biases."""
-        rng = np.random.default_rng(seed)
+        """Glorot-uniform weights (member k seeded by ``seed + k``), zero biases."""
         s = self.layer_sizes
-        weights = [
-            rng.uniform(-1, 1, s[i] * s[i + 1]) * math.sqrt(6.0 / (s[i] + s[i + 1]))
-            for i in range(len(s) - 1)
-        ]
-        return np.concatenate(weights + [np.zeros(sum(s[1:]))])
+        blocks = []
+        for k in range(self.members):
+            rng = np.random.default_rng(seed + k)
+            weights = [
+                rng.uniform(-1, 1, s[i] * s[i + 1]) * math.sqrt(6.0 / (s[i] + s[i + 1]))
+                for i in range(len(s) - 1)
+            ]
+            blocks.append(np.concatenate(weights + [np.zeros(sum(s[1:]))]))
+        return np.concatenate(blocks)
 
     def last_bias_index(self) -> int:
-        """Index of the output bias in the parameter layout."""
+        """Index of the (last member's) output bias in the parameter layout."""
         return self.n_params - 1
 
     def key(self) -> str:
-        return f"nn({self.hidden},{self.scale!r},{self.envelope_radius!r})"
+        members = f",x{self.members}" if self.members > 1 else ""
+        return f"nn({self.hidden},{self.scale!r},{self.envelope_radius!r}{members})"
 
     def describe(self) -> dict:
         return {
@@ -199,8 +229,12 @@ class NeuralPotential(Term):
             "hidden": list(self.hidden),
             "scale": self.scale,
             "envelope_radius": self.envelope_radius,
+            "members": self.members,
             "activation": "tanh",
-            "layout": "ffnn: weights (row-major, out x in) layer by layer, then biases",
+            "layout": (
+                "ffnn: weights (row-major, out x in) layer by layer, then biases; "
+                "members one after the other, the potential uses their mean"
+            ),
         }
 
 
@@ -366,7 +400,12 @@ def term_from_description(d: dict) -> Term:
             str(d.get("label", "mascons")),
         )
     if kind == "network":
-        return NeuralPotential(tuple(d["hidden"]), float(d["scale"]), float(d["envelope_radius"]))
+        return NeuralPotential(
+            tuple(d["hidden"]),
+            float(d["scale"]),
+            float(d["envelope_radius"]),
+            int(d.get("members", 1)),
+        )
     if kind == "sh":
         return SphericalHarmonics(int(d["degree"]), float(d["reference_radius"]), float(d["mu"]))
     if kind == "srp":

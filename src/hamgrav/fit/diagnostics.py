@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.problem import ArcProblem
 
-__all__ = ["IMPROVEMENT_THRESHOLD", "diagnose"]
+__all__ = ["IMPROVEMENT_THRESHOLD", "constrained_parameters", "diagnose"]
 
 #: A fit "clearly improves" over no correction when its held-out cost is below this fraction
 #: of the no-correction cost.
@@ -28,8 +28,12 @@ def diagnose(
     no_correction: np.ndarray,
     train: np.ndarray | None,
     validation: np.ndarray | None,
+    *,
+    rank: bool = True,
 ) -> dict:
-    """Diagnostics of ``params`` against ``no_correction`` (see the module docstring)."""
+    """Diagnostics of ``params`` against ``no_correction`` (see the module docstring);
+    ``rank=False`` leaves out ``constrained_parameters`` (it needs A^T A of every parameter:
+    an ensemble reports it per member instead)."""
     held_out = validation is not None and len(validation) > 0
     arcs = validation if held_out else train
     fitted = problem.cost(params, arcs)
@@ -41,11 +45,19 @@ def diagnose(
         "improved": bool(relative < IMPROVEMENT_THRESHOLD),
         "n_params": int(problem.n_params),
     }
-    if problem.n_params:
-        _, _, ata = problem.normal_equations(params, train)
-        eig = np.linalg.eigvalsh(ata)
-        top = float(eig.max())
-        out["constrained_parameters"] = int(np.sum(eig > 1e-12 * top)) if top > 0 else 0
-    else:
-        out["constrained_parameters"] = 0
+    if rank:
+        out["constrained_parameters"] = constrained_parameters(problem, params, train)
     return out
+
+
+def constrained_parameters(
+    problem: ArcProblem, params: np.ndarray, train: np.ndarray | None
+) -> int:
+    """The numerical rank of A^T A on the ``train`` arcs at ``params`` (see the module
+    docstring); 0 without parameters."""
+    if not problem.n_params:
+        return 0
+    _, _, ata = problem.normal_equations(params, train)
+    eig = np.linalg.eigvalsh(ata)
+    top = float(eig.max())
+    return int(np.sum(eig > 1e-12 * top)) if top > 0 else 0
