@@ -173,3 +173,20 @@ def test_an_ensemble_cannot_estimate_per_trajectory_parameters(small_arcs, synth
     )
     with pytest.raises(InputError, match="members=1"):
         est.fit(small_arcs)
+
+
+def test_a_warm_start_no_step_improves_keeps_the_starting_model(small_arcs, synthetic_truth):
+    held_out = np.array([2, 6])
+    good = GravityEstimator("sh", degree=2, body=synthetic_truth.body)
+    good.fit(small_arcs, validation=held_out)
+    # a solver that can take no step: every trial is rejected
+    stuck = LevenbergMarquardt(max_iter=1, lambda0=1e20)
+    warm = GravityEstimator("sh", degree=2, body=synthetic_truth.body, solver=stuck)
+    warm.fit(small_arcs, init=good.params_, validation=held_out)
+    assert warm.result_.outcome.value == "converged"
+    assert "kept the starting model" in warm.result_.message
+    assert np.array_equal(warm.params_, good.params_)
+    # the same solver from scratch learns nothing and says so
+    scratch = GravityEstimator("sh", degree=2, body=synthetic_truth.body, solver=stuck)
+    scratch.fit(small_arcs, validation=held_out)
+    assert scratch.result_.outcome.value == "no improvement"

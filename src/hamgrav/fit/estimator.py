@@ -60,9 +60,9 @@ TERMS = ("network", "sh", "none")
 #: cost does not tell the better one (bench/network_members.py): the members' mean is kept
 #: instead of the best-validation member.
 NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=30, rtol=1e-9, lambda0=1e-2, damping_floor=1e-8)
-#: Warm-started continual stages start near the optimum: they stop after 3 accepted steps
-#: that do not lower the validation cost.
-NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, patience=3)
+#: Warm-started continual stages start near the optimum: at most 10 iterations per member,
+#: stopping after 3 accepted steps that do not lower the validation cost.
+NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=3)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).
 PRESETS: dict[str, dict] = {
@@ -297,6 +297,7 @@ class GravityEstimator:
                 "fit with members=1"
             )
         members = None
+        warm = init is not None
         if init is None:
             init = self.initial_params(model, arcs)
         init = np.asarray(init, dtype=float)
@@ -350,6 +351,13 @@ class GravityEstimator:
                 ranks = [m.pop("constrained_parameters") for m in members]
                 self.diagnostics_["constrained_parameters"] = int(min(ranks))
                 self.diagnostics_["constrained_parameters_per_member"] = ranks
+            if warm and result.outcome is Outcome.NO_IMPROVEMENT and self.diagnostics_["improved"]:
+                # a warm start that no step improves is the previous model, still good
+                result = replace(
+                    result,
+                    outcome=Outcome.CONVERGED,
+                    message=f"kept the starting model: no step improved it ({result.message})",
+                )
             if result.outcome.ok and not self.diagnostics_["improved"]:
                 result = replace(
                     result,
