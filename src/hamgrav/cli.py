@@ -606,9 +606,17 @@ def demo(
         "r = shells in R_B, h30m = 30 m above the surface; misses: distance between the "
         "touchdown point each model predicts and the true one"
     )
+    from .experiments.descent_report import data_coverage
+
+    coverage = data_coverage(result, DescentExperimentConfig.demo().altitude_m)
+    if coverage:
+        console.print(coverage, highlight=False)
+    captions = get_experiment("descent").figure_captions
+    for name in report.get("figures", []):
+        console.print(f"{output / name}: {captions.get(name, '')}", highlight=False)
     console.print(
-        f"wrote {output}/README.md, results.json, touchdown.png, geometry.png, arcs.h5, oem/ "
-        f"in {report['wall_s']:.0f} s"
+        f"wrote {output}/README.md, results.json, the figures, arcs.h5 (the arcs) and oem/ "
+        f"(CCSDS OEM, one file per orbit) in {report['wall_s']:.0f} s"
     )
 
 

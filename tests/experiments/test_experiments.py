@@ -41,11 +41,20 @@ def test_descent_tiny(tmp_path):
         assert fits["point-mass"]["n_params"] == 0
         # degree-2 SH learned the body's elongation: far better than no correction outside
         assert rep["field_error"]["sh2"]["r1.5"] < 0.5
+        # the ensemble: three members, each fitted with its own initialisation
+        assert [m["init_seed"] for m in fits["network-best"]["members"]] == [
+            rep["seed"] + k for k in range(3)
+        ]
+        surface, tracked = rep["radius_rb"]["surface_set"], rep["radius_rb"]["arcs"]
+        assert surface == sorted(surface) and tracked == sorted(tracked)
+        assert surface[0] < 1.0 < tracked[0]  # the 30 m set reaches inside the data
     agg = data["aggregate"]["models"]["sh2"]["median_m"]
     medians = [r["models"]["sh2"]["median_m"] for r in data["repetitions"]]
     assert agg["min"] == min(medians) and agg["max"] == max(medians)
     readme = (out / "README.md").read_text()
     assert "| sh2 |" in readme and "2 repetition(s)" in readme
+    assert "- `touchdown.png`: for each planning model" in readme
+    assert "surface-following set lies at" in readme
     assert (out / "touchdown.png").stat().st_size > 1000
 
 

@@ -41,6 +41,10 @@ class ContinualExperiment(Experiment):
     config_type = ContinualExperimentConfig
     aggregate_keys = ("summary",)
     default_output = "results/continual-itokawa"
+    figure_captions = {
+        "continual.png": "field error at 1.2 R_B against the arcs received so far, for fits "
+        "warm-started from the previous stage and fits from scratch",
+    }
 
     def run(self, config: ContinualExperimentConfig, ctx: RunContext) -> RunOutput:
         truth, arcs = simulate(config, ctx)

@@ -79,6 +79,13 @@ class DescentExperiment(Experiment):
     config_type = DescentExperimentConfig
     aggregate_keys = ("models", "field_error")
     default_output = "results/descent-itokawa"
+    figure_captions = {
+        "touchdown.png": "for each planning model, the fraction of descents whose predicted "
+        "contact point lies within a given distance of the true one (higher and further left "
+        "is better; a curve that stops short of 1 has descents that did not land under it)",
+        "geometry.png": "where the data are: the tracked arcs in the body frame around the "
+        "shape, with the Brillouin sphere (spherical harmonics converge only outside it)",
+    }
 
     def run(self, config: DescentExperimentConfig, ctx: RunContext) -> RunOutput:
         seed, say = ctx.seed, ctx.say
@@ -124,6 +131,9 @@ class DescentExperiment(Experiment):
             )
 
         hours = [float(truth.body.units.from_time(t.time)) / 3600 for t in truth_td if t.landed]
+        r_b = truth.body.brillouin_radius
+        surface = np.linalg.norm(sets[f"h{config.altitude_m:g}m"], axis=1) / r_b
+        tracked = np.linalg.norm(arcs.states[..., :3], axis=-1) / r_b
         result = {
             "body": config.body,
             "interior": config.interior,
@@ -134,6 +144,11 @@ class DescentExperiment(Experiment):
             "models": stats,
             "field_error": field_error,
             "fits": {name: est.fitted_.solver for name, est in fits.items()},
+            # where the surface-following set lies against the data [R_B]: min, median, max
+            "radius_rb": {
+                "surface_set": [round(float(f(surface)), 3) for f in (np.min, np.median, np.max)],
+                "arcs": [round(float(f(tracked)), 3) for f in (np.min, np.median, np.max)],
+            },
         }
         paths = [
             propagate_scalar(truth.model, s, np.linspace(0.0, td.time, 80), tol=TRUTH_TOLERANCE)[0]

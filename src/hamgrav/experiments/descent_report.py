@@ -9,7 +9,7 @@ import numpy as np
 
 from .runner import format_range
 
-__all__ = ["descent_readme"]
+__all__ = ["data_coverage", "descent_readme"]
 
 
 def _median(rep: dict, name: str) -> float:
@@ -63,6 +63,9 @@ def descent_readme(report: dict, paper: dict) -> list[str]:
         lines.append(
             f"| {name} | " + " | ".join(format_range(errs[k], "{:.3f}") for k in sets) + " |"
         )
+    coverage = data_coverage(first, cfg["altitude_m"])
+    if coverage:
+        lines += ["", coverage]
     lines += ["", "Fit outcomes (first repetition):", ""]
     for name, f in first["fits"].items():
         lines.append(
@@ -150,3 +153,18 @@ def _checks(reps: list[dict], cfg: dict, paper_median: float) -> list[str]:
         f"{cfg['adam_steps']} steps with peak learning rate {cfg['learning_rate']:g} and a "
         "cosine schedule. The paper quotes one run; seeds change orbits, noise and descents.",
     ]
+
+
+def data_coverage(rep: dict, altitude_m: float) -> str | None:
+    """One sentence on where the surface-following set lies against the tracked samples (one
+    repetition's result), or None for results that did not record it."""
+    radii = rep.get("radius_rb")
+    if not radii:
+        return None
+    lo, mid, hi = radii["surface_set"]
+    arcs_lo, _, arcs_hi = radii["arcs"]
+    return (
+        f"The {altitude_m:g} m surface-following set lies at {lo:.2f}-{hi:.2f} R_B (median "
+        f"{mid:.2f}), the tracked samples at {arcs_lo:.2f}-{arcs_hi:.2f} R_B: every model's "
+        "field there is an extrapolation inwards from the data."
+    )

@@ -87,6 +87,8 @@ class Experiment(ABC):
     aggregate_keys: tuple[str, ...] = ()
     #: default output folder
     default_output: str = ""
+    #: what each figure file shows, in one sentence (README and console)
+    figure_captions: dict[str, str] = {}
 
     def default_config(self) -> ExperimentConfig:
         """The config with every default."""
@@ -388,7 +390,10 @@ def write_readme(experiment: Experiment, report: dict, folder: Path) -> None:
     ]
     lines = header + experiment.readme(report)
     if figures:
-        lines += ["", "Figures: " + ", ".join(f"`{name}`" for name in figures) + "."]
+        captions = experiment.figure_captions
+        lines += ["", "Figures:", ""] + [
+            f"- `{name}`" + (f": {captions[name]}" if name in captions else "") for name in figures
+        ]
     config = report["config"]
     lines += ["", "## Configuration", "", "| option | value |", "|---|---|"]
     lines += [f"| {k} | {v} |" for k, v in config.items()]

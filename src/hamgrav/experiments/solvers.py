@@ -47,6 +47,10 @@ class SolverExperiment(Experiment):
     config_type = SolverExperimentConfig
     aggregate_keys = ("field_error",)
     default_output = "results/solvers-itokawa"
+    figure_captions = {
+        "d_optimal.png": "log det of the information of the orbits selected so far: greedy "
+        "D-optimal selection against random orders (higher is more informative)",
+    }
 
     def run(self, config: SolverExperimentConfig, ctx: RunContext) -> RunOutput:
         seed, say = ctx.seed, ctx.say
