@@ -148,7 +148,8 @@ def _checks(reps: list[dict], cfg: dict, paper_median: float) -> list[str]:
         "Known differences of set-up (the paper does not fix them): the truth is "
         f"{cfg['n_mascons']} k-means mascons of the shape (about 0.2 % of the perturbing "
         f"potential from the exact polyhedron at 1.05 R_B), interior: {interior}; orbits start "
-        "circular with random node and phase and are tracked over one spin period; descents "
+        "circular with random node and phase and are tracked over "
+        f"{cfg.get('window_spin_periods', 1.0):g} spin period(s); descents "
         "start at rest in inertial space plus the inward manoeuvre; Adam runs "
         f"{cfg['adam_steps']} steps with peak learning rate {cfg['learning_rate']:g} and a "
         "cosine schedule. The paper quotes one run; seeds change orbits, noise and descents.",
