@@ -245,7 +245,7 @@ def fit(
         output.parent.mkdir(parents=True, exist_ok=True)
         body_obj = body_for_arcs(arcs)
         if solver is not None:  # a solver by name replaces the configuration's
-            settings = {**settings, "solver": solver, "members": 1}
+            settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
         if term == "network":
             settings = {**settings, "hidden": hidden_sizes}
         settings |= {"adam_steps": steps, "learning_rate": learning_rate}

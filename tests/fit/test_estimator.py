@@ -190,3 +190,20 @@ def test_a_warm_start_no_step_improves_keeps_the_starting_model(small_arcs, synt
     scratch = GravityEstimator("sh", degree=2, body=synthetic_truth.body, solver=stuck)
     scratch.fit(small_arcs, validation=held_out)
     assert scratch.result_.outcome.value == "no improvement"
+
+
+def test_warm_starts_run_the_warm_solver(small_arcs, synthetic_truth):
+    est = GravityEstimator(
+        "sh",
+        degree=2,
+        body=synthetic_truth.body,
+        solver=LevenbergMarquardt(max_iter=4),
+        warm_solver=LevenbergMarquardt(max_iter=1),
+    )
+    est.fit(small_arcs)
+    assert est.fitted_.solver["max_iter"] == 4
+    est.fit(small_arcs, init=est.params_)
+    assert est.fitted_.solver["max_iter"] == 1 and est.result_.iterations == 1
+    # a solver given to fit() wins over both
+    est.fit(small_arcs, init=est.params_, solver=LevenbergMarquardt(max_iter=2))
+    assert est.fitted_.solver["max_iter"] == 2

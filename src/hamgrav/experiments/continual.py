@@ -1,7 +1,7 @@
 """Continual learning: the campaign arriving in stages, each stage's fit warm-started from the
 previous one, against fitting all arcs so far from scratch at every stage. Warm network stages
-use :data:`~hamgrav.fit.estimator.NETWORK_WARM_SOLVER` (they stop after 3 accepted steps that
-do not lower the validation cost).
+use the preset's warm solver, :data:`~hamgrav.fit.estimator.NETWORK_WARM_SOLVER` (at most 10
+iterations per member, stopping after 3 accepted steps that do not lower the validation cost).
 
 The 112 arcs of the descent campaign arrive in ``stages`` stages of whole orbits (orbit grid
 order); the network (the ``network-best`` configuration) and SH 8 are fitted at every stage,
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..fit.continual import fit_continual
-from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator, preset
+from ..fit.estimator import GravityEstimator, preset
 from .common import CampaignConfig, errors_of, sets_for, simulate
 from .config import option
 from .continual_report import continual_figure, continual_readme
@@ -62,10 +62,7 @@ class ContinualExperiment(Experiment):
                 stages[k][mode] = {}
             for name, settings in models.items():
                 est = GravityEstimator(body=truth.body, seed=ctx.seed, **settings)
-                warm_solver = NETWORK_WARM_SOLVER if name == "network-best" else None
-                records = fit_continual(
-                    est, arcs, arriving, warm_start=mode == "warm", warm_solver=warm_solver
-                )
+                records = fit_continual(est, arcs, arriving, warm_start=mode == "warm")
                 for k, r in enumerate(records):
                     stages[k][mode][name] = {
                         **errors_of(est.model_, r.result.params, truth, sets),

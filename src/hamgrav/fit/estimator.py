@@ -69,7 +69,12 @@ PRESETS: dict[str, dict] = {
     # the paper's protocol: Adam, unweighted canonical residuals, 24-arc batches, cosine
     # schedule, 12 % hold-out
     "network": {"term": "network", "solver": "adam", "adam_steps": 1500, "learning_rate": 1e-2},
-    "network-best": {"term": "network", "solver": NETWORK_BEST_SOLVER, "members": 3},
+    "network-best": {
+        "term": "network",
+        "solver": NETWORK_BEST_SOLVER,
+        "warm_solver": NETWORK_WARM_SOLVER,
+        "members": 3,
+    },
 }
 
 
@@ -137,6 +142,8 @@ class GravityEstimator:
         prior_mascons: mascons of the shape prior.
         solver: "lm", "adam", a :class:`~hamgrav.fit.base.Solver` instance, or None (Adam for
             the network, LM for SH).
+        warm_solver: the solver of warm-started fits (``init`` given), e.g. a shorter budget;
+            None: the same as ``solver``.
         weighted: divide residual components by their noise sigmas (:func:`noise_sigmas`).
         kaula: None, a Kaula weight alpha, or "scan" (needs ``kaula_metric``).
         kaula_metric: callable(params, model) -> score for the scan (lower is better).
@@ -163,6 +170,7 @@ class GravityEstimator:
         prior: str | None = None,
         prior_mascons: int = DEFAULT_PRIOR_MASCONS,
         solver: str | Solver | None = None,
+        warm_solver: Solver | None = None,
         weighted: bool = False,
         kaula: float | str | None = None,
         kaula_metric: Callable | None = None,
@@ -185,6 +193,7 @@ class GravityEstimator:
         self.prior = prior
         self.prior_mascons = prior_mascons
         self.solver = solver
+        self.warm_solver = warm_solver
         self.weighted = weighted
         self.kaula = kaula
         self.kaula_metric = kaula_metric
@@ -286,8 +295,7 @@ class GravityEstimator:
     ) -> GravityEstimator:
         """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
         stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`),
-        ``solver`` replaces the estimator's solver for this fit (e.g. a shorter budget for a
-        warm start)."""
+        ``solver`` replaces the estimator's solver (and ``warm_solver``) for this fit."""
         model, prior_info = self.build_model(arcs)
         problem = self._problem(model, arcs)
         ensemble = isinstance(model.learnable, NeuralPotential) and model.learnable.members > 1
@@ -311,7 +319,7 @@ class GravityEstimator:
             train = np.setdiff1d(np.arange(arcs.n_arcs), validation)
         else:
             train, validation = self.split(arcs)
-        solver = solver or self.make_solver()
+        solver = solver or (self.warm_solver if warm else None) or self.make_solver()
         kaula_scores = None
         if problem.n_params == 0:
             result = _nothing_to_fit(problem)
