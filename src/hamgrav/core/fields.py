@@ -1,9 +1,10 @@
 """Field-error metrics of the paper and the point sets they are evaluated on (canonical units).
 
-eps = sqrt(sum (V_model - V_target)^2 / sum V_target^2) over an evaluation set, where the
-target of a model's learnable term is the truth's potential minus the model's known part
-(minus the point mass from tracking alone, minus the shape prior in residual mode): eps = 1 is
-the error of applying no correction at all.
+eps = sqrt(sum (V_model - V_truth)^2 / sum (V_truth - 1/r)^2) over an evaluation set: the error
+of the whole model (known part plus learnable term) relative to the perturbing potential, the
+truth minus the central term. eps = 1 is the error of applying no correction at all (the point
+mass alone); a shape prior alone scores how much of the perturbation the constant-density shape
+misses, and a residual model on the prior is compared on the same scale as one without it.
 """
 
 from __future__ import annotations
@@ -65,16 +66,14 @@ def perturbation_ratio(mascons: MasconSet, points: np.ndarray) -> float:
 def field_errors(
     model: Model, params: np.ndarray, truth: MasconSet, sets: dict[str, np.ndarray]
 ) -> dict[str, float]:
-    """Relative field error of ``model``'s learnable term at ``params`` on each named point set
-    (canonical points (n, 3)); 1.0 for a model without a learnable term (no correction)."""
+    """Relative field error of the whole ``model`` at ``params`` (known part plus learnable
+    term) against the truth's perturbing potential, on each named point set (canonical points
+    (n, 3)); see the module docstring. 1.0 for the point mass alone."""
     out = {}
     for name, pts in sets.items():
-        v_truth = mascon_potential(truth, pts)
-        v_known, _ = evaluate_field(model, params, pts, which="known")
-        target = v_truth - v_known
-        if model.learnable is None:
-            v_model = np.zeros_like(target)
-        else:
-            v_model, _ = evaluate_field(model, params, pts, which="learnable")
-        out[name] = relative_field_error(v_model, target)
+        target = perturbing_potential(truth, pts)
+        v_model, _ = evaluate_field(model, params, pts, which="known")
+        if model.learnable is not None:
+            v_model = v_model + evaluate_field(model, params, pts, which="learnable")[0]
+        out[name] = relative_field_error(v_model - central_potential(pts), target)
     return out

@@ -1,0 +1,35 @@
+import numpy as np
+
+from hamgrav.core.fields import field_errors, shell_points
+from hamgrav.core.mascons import MasconSet, mascon_potential
+from hamgrav.core.model import Model
+from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
+
+
+def _truth_and_prior():
+    rng = np.random.default_rng(5)
+    pos = rng.normal(size=(40, 3)) * [0.4, 0.2, 0.15]
+    mass = rng.uniform(0.5, 1.5, 40)
+    pos -= mass @ pos / mass.sum()
+    truth = MasconSet(pos, mass / mass.sum())
+    # a "shape prior": the same positions at equal masses (a constant-density guess)
+    prior = MasconSet(pos, np.full(40, 1.0 / 40))
+    return truth, prior
+
+
+def test_errors_are_of_the_whole_model_against_the_perturbation():
+    truth, prior = _truth_and_prior()
+    pts = {"r1.5": shell_points(1.5, 300, seed=1)}
+    pert = mascon_potential(truth, pts["r1.5"]) - 1.0 / np.linalg.norm(pts["r1.5"], axis=1)
+    # the point mass alone: no correction, 1 exactly
+    none = field_errors(Model((PointMass(),)), np.zeros(0), truth, pts)["r1.5"]
+    assert np.isclose(none, 1.0, rtol=1e-12)
+    # the prior alone: how much of the perturbation it misses, by hand
+    miss = mascon_potential(prior, pts["r1.5"]) - mascon_potential(truth, pts["r1.5"])
+    expected = np.sqrt(np.sum(miss**2) / np.sum(pert**2))
+    alone = field_errors(Model((MasconTerm(prior),)), np.zeros(0), truth, pts)["r1.5"]
+    assert 0.0 < alone < 1.0 and np.isclose(alone, expected, rtol=1e-12)
+    # a residual on the prior is scored on the same scale: a zero residual is the prior alone
+    sh = SphericalHarmonics(2, 1.0)
+    residual = Model((MasconTerm(prior),), sh)
+    assert np.isclose(field_errors(residual, np.zeros(sh.n_params), truth, pts)["r1.5"], alone)
