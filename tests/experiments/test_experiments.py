@@ -122,3 +122,29 @@ def test_continual_tiny(tmp_path):
     assert summary["final_r1.2_warm"] == rep["stages"][-1]["warm"]["sh2"]["r1.2"]
     assert "## Against the targets" in (out / "README.md").read_text()
     assert (out / "continual.png").stat().st_size > 1000
+
+
+def test_descent_with_the_shape_prior_tiny(tmp_path):
+    out = tmp_path / "residual"
+    args = [
+        "experiment", "descent", *TINY_CAMPAIGN, "--descents", "3", "--sh-degrees", "2",
+        "--hidden", "4", "--lm-iterations", "3", "--prior", "shape", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    assert set(rep["models"]) == {"shape", "shape+sh2", "shape+network"}
+    errors = rep["field_error"]
+    # the prior alone is a real model: it explains part of the perturbation, not all of it
+    assert 0.0 < errors["shape"]["r1.5"] < 1.0
+    assert rep["fits"]["shape+network"]["members"]
+    readme = (out / "README.md").read_text()
+    assert "residual on the constant-density shape prior" in readme
+    assert "| shape+network |" in readme and "against the shape model alone" in readme
+
+
+def test_descent_rejects_an_unknown_prior(tmp_path):
+    result = runner.invoke(
+        app, ["experiment", "descent", "--prior", "polyhedron", "-o", str(tmp_path / "x")]
+    )
+    assert result.exit_code == 2 and "prior must be 'none' or 'shape'" in result.output
