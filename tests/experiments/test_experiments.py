@@ -148,3 +148,33 @@ def test_descent_rejects_an_unknown_prior(tmp_path):
         app, ["experiment", "descent", "--prior", "polyhedron", "-o", str(tmp_path / "x")]
     )
     assert result.exit_code == 2 and "prior must be 'none' or 'shape'" in result.output
+
+
+def test_interiors_tiny(tmp_path):
+    out = tmp_path / "interiors"
+    args = [
+        "experiment", "interiors", *TINY_CAMPAIGN, "--sh-degrees", "2", "--hidden", "4",
+        "--lm-iterations", "3", "--truths", "head-tail,void", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    assert set(rep["truths"]) == {"head-tail", "void"}
+    for truth in rep["truths"].values():
+        errors = truth["field_error"]
+        assert set(errors) == {"shape", "network-scratch", "shape+network", "shape+sh2"}
+        # the shape alone misses part of the perturbation, not all of it
+        missed = truth["missed_fraction"]
+        assert set(missed) == {"r1.05", "r1.1", "r1.2", "r1.5"}
+        assert all(0.0 < v < 1.0 for v in missed.values())
+        assert missed == {k: errors["shape"][k] for k in missed}
+    readme = (out / "README.md").read_text()
+    assert "### Truth: void" in readme and "(paper, head/tail: 15-21 %)" in readme
+    assert (out / "residuals.png").stat().st_size > 1000
+
+
+def test_interiors_rejects_an_unknown_truth(tmp_path):
+    result = runner.invoke(
+        app, ["experiment", "interiors", "--truths", "marble", "-o", str(tmp_path / "x")]
+    )
+    assert result.exit_code == 2 and "truths must be among" in result.output
