@@ -172,9 +172,15 @@ def _checks(reps: list[dict], cfg: dict, paper_median: float) -> list[str]:
         f"potential from the exact polyhedron at 1.05 R_B), interior: {interior}; orbits start "
         "circular with random node and phase and are tracked over "
         f"{cfg.get('window_spin_periods', 1.0):g} spin period(s); descents "
-        "start at rest in inertial space plus the inward manoeuvre; Adam runs "
-        f"{cfg['adam_steps']} steps with peak learning rate {cfg['learning_rate']:g} and a "
-        "cosine schedule. The paper quotes one run; seeds change orbits, noise and descents.",
+        "start at rest in inertial space plus the inward manoeuvre"
+        + (
+            f"; Adam runs {cfg['adam_steps']} steps with peak learning rate "
+            f"{cfg['learning_rate']:g} and a cosine schedule"
+            if "network" in reps[0]["models"]
+            else "; the shape prior is "
+            "k-means mascons of the shape fitted to the exact constant-density polyhedron"
+        )
+        + ". The paper quotes one run; seeds change orbits, noise and descents.",
     ]
 
 
