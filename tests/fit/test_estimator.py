@@ -73,6 +73,32 @@ def test_kaula_scan_keeps_the_best_alpha(small_arcs, synthetic_truth):
     assert np.linalg.norm(est.params_) == pytest.approx(best[1])
 
 
+def test_kaula_scan_without_the_truth_chooses_on_held_out_arcs(small_arcs, synthetic_truth):
+    held_out = np.array([2, 6])
+    est = GravityEstimator(
+        "sh", degree=3, kaula="scan", validation_fraction=0.2, body=synthetic_truth.body
+    )
+    est.fit(small_arcs, validation=held_out)
+    scan = est.fitted_.solver["kaula_scan"]
+    best = min(scan, key=lambda s: s[1])
+    assert est.fitted_.solver["kaula_alpha"] == best[0]
+    # the score is the held-out cost, and the fits never saw those arcs
+    problem = ArcProblem(est.model_, small_arcs)
+    assert best[1] == pytest.approx(problem.cost(est.params_, held_out), rel=1e-12)
+    train = np.setdiff1d(np.arange(small_arcs.n_arcs), held_out)
+    alone = GravityEstimator(
+        "sh", degree=3, kaula=best[0], validation_fraction=0.2, body=synthetic_truth.body
+    ).fit(small_arcs, validation=held_out)
+    assert np.allclose(alone.params_, est.params_, rtol=1e-10, atol=0)
+    assert est.train_.tolist() == train.tolist()
+
+
+def test_kaula_scan_needs_a_metric_or_held_out_arcs(small_arcs, synthetic_truth):
+    est = GravityEstimator("sh", degree=3, kaula="scan", body=synthetic_truth.body)
+    with pytest.raises(InputError, match="validation arcs"):
+        est.fit(small_arcs)
+
+
 def test_validation_split_is_decided_once(small_arcs, synthetic_truth):
     est = GravityEstimator("network", hidden=(4,), adam_steps=3, body=synthetic_truth.body)
     est.fit(small_arcs)

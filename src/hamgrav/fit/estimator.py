@@ -147,7 +147,9 @@ class GravityEstimator:
         warm_solver: the solver of warm-started fits (``init`` given), e.g. a shorter budget;
             None: the same as ``solver``.
         weighted: divide residual components by their noise sigmas (:func:`noise_sigmas`).
-        kaula: None, a Kaula weight alpha, or "scan" (needs ``kaula_metric``).
+        kaula: None, a Kaula weight alpha, or "scan": every alpha of the scan fitted to the
+            training arcs, the best by ``kaula_metric`` or, without one, by the cost on the
+            validation arcs (what a mission can do without the truth).
         kaula_metric: callable(params, model) -> score for the scan (lower is better).
         validation_fraction: arcs held out for validation; None: 0.12 for the network, 0 for SH.
         per_trajectory: per-trajectory terms (e.g. SRP) added to the model.
@@ -326,15 +328,23 @@ class GravityEstimator:
         if problem.n_params == 0:
             result = _nothing_to_fit(problem)
         elif self.kaula == "scan":
-            if self.kaula_metric is None:
-                raise InputError("kaula='scan' needs kaula_metric(params, model)")
+            if self.kaula_metric is not None:
+                metric = lambda c: self.kaula_metric(c, model)  # noqa: E731
+            elif validation is not None and len(validation):
+                metric = lambda c: problem.cost(c, validation)  # noqa: E731
+            else:
+                raise InputError(
+                    "kaula='scan' needs kaula_metric(params, model) or validation arcs "
+                    "(validation_fraction > 0) to choose alpha"
+                )
             if not isinstance(solver, LevenbergMarquardt):
                 raise InputError("the Kaula scan needs the LM solver")
             _, result, kaula_scores = scan_kaula(
                 problem,
-                lambda c: self.kaula_metric(c, model),
+                metric,
                 solver=solver,
                 theta0=init,
+                train=train,
                 mapper=self.mapper,
             )
         elif ensemble:

@@ -18,8 +18,8 @@ __all__ = ["KAULA_ALPHAS", "scan_kaula"]
 KAULA_ALPHAS = (1e-8, 1e-7, 1e-6, 1e-5, 1e-4)
 
 
-def _solve_with_alpha(problem, solver, theta0, alpha) -> SolveResult:
-    return replace(solver, kaula_alpha=float(alpha)).solve(problem, theta0)
+def _solve_with_alpha(problem, solver, theta0, train, alpha) -> SolveResult:
+    return replace(solver, kaula_alpha=float(alpha)).solve(problem, theta0, train=train)
 
 
 def scan_kaula(
@@ -29,10 +29,12 @@ def scan_kaula(
     solver: LevenbergMarquardt | None = None,
     theta0: np.ndarray | None = None,
     *,
+    train: np.ndarray | None = None,
     mapper: Callable = map,
 ):
-    """Fit with each Kaula weight and keep the one with the lowest ``metric(params)`` (the
-    caller supplies the metric: a truth-based field error as in the paper, or a held-out cost).
+    """Fit with each Kaula weight on the ``train`` arcs (all if None) and keep the one with the
+    lowest ``metric(params)`` (the caller supplies the metric: a truth-based field error as in
+    the paper, or the cost on arcs held out of ``train``).
 
     The fits are independent work units of plain data: ``mapper`` (builtin ``map`` by default,
     or a Dask client's) runs them; the metric is evaluated here.
@@ -40,7 +42,7 @@ def scan_kaula(
     Returns (best alpha, best SolveResult, list of (alpha, metric value)).
     """
     solver = solver or LevenbergMarquardt()
-    results = list(mapper(partial(_solve_with_alpha, problem, solver, theta0), alphas))
+    results = list(mapper(partial(_solve_with_alpha, problem, solver, theta0, train), alphas))
     scores = [(float(a), float(metric(r.params))) for a, r in zip(alphas, results, strict=True)]
     k = int(np.argmin([s for _, s in scores]))
     return scores[k][0], results[k], scores
