@@ -178,3 +178,26 @@ def test_interiors_rejects_an_unknown_truth(tmp_path):
         app, ["experiment", "interiors", "--truths", "marble", "-o", str(tmp_path / "x")]
     )
     assert result.exit_code == 2 and "truths must be among" in result.output
+
+
+def test_anomalies_tiny(tmp_path):
+    out = tmp_path / "anomalies"
+    args = [
+        "experiment", "anomalies", *TINY_CAMPAIGN, "--interior", "anomalies",
+        "--arcs-per-orbit", "5",
+        "--sh-degrees", "2,3", "--kaula-degrees", "3", "--hidden", "4", "--lm-iterations", "3",
+        "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    names = {"shape", "shape+sh2", "shape+sh3", "shape+sh3-kaula", "shape+sh3-kaula-holdout"}
+    assert set(rep["field_error"]) == names | {"shape+network"}
+    assert set(rep["kaula_alpha"]) == {"shape+sh3-kaula", "shape+sh3-kaula-holdout"}
+    # the holdout choice never saw its validation arcs; the truth choice trained on all
+    assert rep["fits"]["shape+sh3-kaula-holdout"]["n_validation"] > 0
+    assert rep["fits"]["shape+sh3-kaula"]["n_validation"] == 0
+    assert rep["best_sh"] in names - {"shape"}
+    readme = (out / "README.md").read_text()
+    assert "| shape+network |" in readme and "Kaula alpha chosen" in readme
+    assert (out / "maps.png").stat().st_size > 1000

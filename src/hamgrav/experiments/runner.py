@@ -119,7 +119,7 @@ def register(experiment: Experiment) -> Experiment:
 
 def get_experiment(name: str) -> Experiment:
     """The registered experiment called ``name``."""
-    from . import continual, descent, interiors, solvers  # noqa: F401 (registration)
+    from . import anomalies, continual, descent, interiors, solvers  # noqa: F401 (registration)
 
     if name not in _REGISTRY:
         raise InputError(f"unknown experiment {name!r}; known: {', '.join(experiment_names())}")
@@ -128,7 +128,7 @@ def get_experiment(name: str) -> Experiment:
 
 def experiment_names() -> list[str]:
     """Names of the registered experiments."""
-    from . import continual, descent, interiors, solvers  # noqa: F401 (registration)
+    from . import anomalies, continual, descent, interiors, solvers  # noqa: F401 (registration)
 
     return sorted(_REGISTRY)
 
