@@ -55,6 +55,13 @@ def test_descent_tiny(tmp_path):
     assert "| sh2 |" in readme and "2 repetition(s)" in readme
     assert "- `touchdown.png`: for each planning model" in readme
     assert "surface-following set lies at" in readme
+    # the README can be written again from results.json, with hand-written notes carried in
+    (out / "NOTES.md").write_text("Seed 1 is the hard draw.\n")
+    again = runner.invoke(app, ["experiment", "readme", str(out)])
+    assert again.exit_code == 0, again.output
+    rerendered = (out / "README.md").read_text()
+    assert "## Notes\n\nSeed 1 is the hard draw." in rerendered
+    assert rerendered.replace("## Notes\n\nSeed 1 is the hard draw.\n\n", "") == readme
     assert (out / "touchdown.png").stat().st_size > 1000
 
 

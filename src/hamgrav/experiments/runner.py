@@ -368,6 +368,10 @@ def rerender_readme(folder: str | Path) -> Path:
     return folder / "README.md"
 
 
+#: A hand-written file in a results folder whose text the README includes under "Notes".
+NOTES_FILE = "NOTES.md"
+
+
 def write_readme(experiment: Experiment, report: dict, folder: Path) -> None:
     """README.md of ``report`` (its tables, the command, the configuration) into ``folder``."""
     figures = report.get("figures", [])
@@ -394,6 +398,11 @@ def write_readme(experiment: Experiment, report: dict, folder: Path) -> None:
         lines += ["", "Figures:", ""] + [
             f"- `{name}`" + (f": {captions[name]}" if name in captions else "") for name in figures
         ]
+    notes = folder / NOTES_FILE
+    if notes.is_file():
+        # the analysts' reading of these numbers (why they differ from the paper's), kept by
+        # hand beside the generated tables and carried over when the README is re-rendered
+        lines += ["", "## Notes", "", notes.read_text().strip()]
     config = report["config"]
     lines += ["", "## Configuration", "", "| option | value |", "|---|---|"]
     lines += [f"| {k} | {v} |" for k, v in config.items()]
