@@ -132,13 +132,24 @@ def test_continual_tiny(tmp_path):
 
 
 def test_descent_with_the_shape_prior_tiny(tmp_path):
-    out = tmp_path / "residual"
-    args = [
+    common = [
         "experiment", "descent", *TINY_CAMPAIGN, "--descents", "3", "--sh-degrees", "2",
-        "--hidden", "4", "--lm-iterations", "3", "--prior", "shape", "-o", str(out),
+        "--hidden", "4", "--lm-iterations", "2", "--adam-steps", "2",
     ]  # fmt: skip
+    plain = tmp_path / "plain"
+    assert runner.invoke(app, [*common, "-o", str(plain)]).exit_code == 0
+    out = tmp_path / "residual"
+    args = [*common, "--prior", "shape", "--compare-with", str(plain), "-o", str(out)]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    assert json.loads((out / "results.json").read_text())["config"]["compare_with"] == str(plain)
+    # a comparison that is not a descent run without the prior is refused up front
+    wrong = runner.invoke(app, [*common, "--compare-with", str(out), "-o", str(tmp_path / "x")])
+    assert wrong.exit_code == 2 and "not a descent run without the prior" in wrong.output
+    missing = runner.invoke(
+        app, [*common, "--compare-with", str(tmp_path / "nowhere"), "-o", str(tmp_path / "y")]
+    )
+    assert missing.exit_code == 2 and "cannot read" in missing.output
     rep = json.loads((out / "results.json").read_text())["repetitions"][0]
     assert set(rep["models"]) == {"shape", "shape+sh2", "shape+network"}
     errors = rep["field_error"]

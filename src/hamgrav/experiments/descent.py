@@ -11,8 +11,10 @@ and field errors on shells and on the 30 m surface-following set.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -78,10 +80,19 @@ class DescentExperimentConfig(CampaignConfig):
         "network-best configuration as a residual on it).",
     )
 
+    compare_with: str = option(
+        "",
+        "A results folder of the same campaign without the prior: its first repetition's "
+        "curves (same seed) are drawn dashed in the touchdown figure, as in the paper's figure "
+        "with both blocks.",
+    )
+
     def check(self) -> None:
         super().check()
         if self.prior not in ("none", "shape"):
             raise InputError(f"prior must be 'none' or 'shape', got {self.prior!r}")
+        if self.compare_with:
+            _comparison(self.compare_with)
 
     shells_rb: tuple[float, ...] = option((1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].")
 
@@ -201,10 +212,26 @@ class DescentExperiment(Experiment):
     def figures(self, report: dict, artefacts: dict) -> dict:
         first = report["repetitions"][0]
         models = first["models"]
+        misses = {k: v["misses_m"] for k, v in models.items()}
+        totals = {k: v["total"] for k, v in models.items()}
+        dashed = set()
+        if report["config"].get("compare_with"):
+            other = _comparison(report["config"]["compare_with"])
+            same = [r for r in other["repetitions"] if r["seed"] == first["seed"]]
+            if not same:
+                raise InputError(
+                    f"{report['config']['compare_with']} has no repetition with seed "
+                    f"{first['seed']}: compare runs of the same draw"
+                )
+            for name, stats in same[0]["models"].items():
+                label = f"{name} (no prior)"
+                misses[label], totals[label] = stats["misses_m"], stats["total"]
+                dashed.add(label)
         cdf = miss_cdf_figure(
-            {k: v["misses_m"] for k, v in models.items()},
-            {k: v["total"] for k, v in models.items()},
+            misses,
+            totals,
             f"{first['body']}: touchdown miss, {first['n_arcs']} arcs (seed {first['seed']})",
+            dashed=dashed,
         )
         geometry = campaign_figure(
             artefacts["vertices_m"],
@@ -217,6 +244,18 @@ class DescentExperiment(Experiment):
             f"(body frame, interior '{first['interior']}')",
         )
         return {"touchdown.png": cdf, "geometry.png": geometry}
+
+
+def _comparison(folder: str) -> dict:
+    """The results of a descent run without the prior, to draw beside this one."""
+    path = Path(folder) / "results.json"
+    try:
+        report = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"--compare-with: cannot read {path} ({exc})") from None
+    if report.get("experiment") != "descent" or report["config"].get("prior", "none") != "none":
+        raise InputError(f"--compare-with: {path} is not a descent run without the prior")
+    return report
 
 
 register(DescentExperiment())

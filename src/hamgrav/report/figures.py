@@ -73,9 +73,16 @@ def campaign_figure(
     return fig
 
 
-def miss_cdf_figure(misses_m: dict[str, list[float]], totals: dict[str, int], title: str) -> Figure:
+def miss_cdf_figure(
+    misses_m: dict[str, list[float]],
+    totals: dict[str, int],
+    title: str,
+    *,
+    dashed: set[str] = frozenset(),
+) -> Figure:
     """Fraction of descents within a miss distance [m], one step curve per model; ``totals``
-    are the descents that landed under the truth (the curves' denominators)."""
+    are the descents that landed under the truth (the curves' denominators); the models in
+    ``dashed`` are drawn dashed (e.g. a comparison block)."""
     fig = Figure(figsize=(6.5, 4.5))
     ax = fig.add_subplot()
     for name, misses in misses_m.items():
@@ -87,6 +94,7 @@ def miss_cdf_figure(misses_m: dict[str, list[float]], totals: dict[str, int], ti
             where="post",
             label=f"{name} ({len(misses)}/{totals[name]})",
             lw=2,
+            ls="--" if name in dashed else "-",
         )
     ax.axhline(0.5, color="k", ls=":", lw=1)
     ax.set_xscale("symlog", linthresh=1.0)
