@@ -233,3 +233,22 @@ def test_warm_starts_run_the_warm_solver(small_arcs, synthetic_truth):
     # a solver given to fit() wins over both
     est.fit(small_arcs, init=est.params_, solver=LevenbergMarquardt(max_iter=2))
     assert est.fitted_.solver["max_iter"] == 2
+
+
+def test_an_ensemble_resumes_at_the_member_it_was_fitting(small_arcs, synthetic_truth):
+    solver = LevenbergMarquardt(max_iter=6, lambda0=1e2, damping_floor=1e-8)
+    settings = {"term": "network", "hidden": (4,), "solver": solver}
+    saved = []
+    full = GravityEstimator(body=synthetic_truth.body, seed=2, members=2, **settings)
+    full.fit(small_arcs, checkpoint=lambda th, st: saved.append((th.copy(), dict(st))))
+    assert {st["member"] for _, st in saved} == {0, 1}
+    theta, state = next((th, st) for th, st in saved if st["member"] == 1)
+    half = theta.size // 2
+    # member 0 was done when member 1 saved its first checkpoint: its block is final
+    assert np.array_equal(theta[:half], full.params_[:half])
+    again = GravityEstimator(body=synthetic_truth.body, seed=2, members=2, **settings)
+    again.fit(small_arcs, init=theta, resume=state)
+    assert np.array_equal(again.params_[:half], full.params_[:half])
+    members = again.fitted_.solver["members"]
+    assert members[0]["message"] == "restored from the checkpoint"
+    assert members[1]["iterations"] >= 1
