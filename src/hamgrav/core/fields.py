@@ -71,9 +71,7 @@ def field_errors(
     (n, 3)); see the module docstring. 1.0 for the point mass alone."""
     out = {}
     for name, pts in sets.items():
+        v_model, _ = evaluate_field(model, params, pts, which="total")
         target = perturbing_potential(truth, pts)
-        v_model, _ = evaluate_field(model, params, pts, which="known")
-        if model.learnable is not None:
-            v_model = v_model + evaluate_field(model, params, pts, which="learnable")[0]
         out[name] = relative_field_error(v_model - central_potential(pts), target)
     return out
