@@ -114,3 +114,24 @@ def test_polyhedron_sign_and_scale(synthetic):
     pts = shell_points(50 * synthetic.brillouin_radius, 10)
     v = polyhedron_potential(synthetic, pts)
     assert np.allclose(v * np.linalg.norm(pts, axis=1), 1.0, atol=1e-3)
+
+
+def test_the_centred_shape_prior_is_fitted_once_per_body_and_seed(synthetic, monkeypatch):
+    from hamgrav.bodies import shape_prior
+
+    calls = []
+    real = shape_prior.fit_shape_prior
+
+    def counted(*args, **kwargs):
+        calls.append(kwargs.get("seed"))
+        return real(*args, **kwargs, samples=5_000)
+
+    monkeypatch.setattr(shape_prior, "fit_shape_prior", counted)
+    monkeypatch.setattr(shape_prior, "_CENTRED_PRIORS", {})
+    first, report = shape_prior.centred_shape_prior(synthetic, 20, seed=4)
+    again, _ = shape_prior.centred_shape_prior(synthetic, 20, seed=4)
+    assert calls == [4] and again is first
+    report["n_mascons"] = -1  # the caller's copy of the report, not the cache's
+    assert shape_prior.centred_shape_prior(synthetic, 20, seed=4)[1]["n_mascons"] > 0
+    shape_prior.centred_shape_prior(synthetic, 20, seed=5)
+    assert calls == [4, 5]

@@ -9,6 +9,8 @@ mass (exactly, after a final sub-millimetre shift), as the paper's residual arch
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from scipy.optimize import nnls
 
@@ -76,10 +78,26 @@ def fit_shape_prior(
     return prior.translated(com), report
 
 
+#: Priors already fitted in this process: every model of a campaign fitted on the prior (SH
+#: degrees, networks) shares one, and the fit takes seconds (k-means, polyhedron, NNLS).
+_CENTRED_PRIORS: dict[tuple, tuple[MasconSet, dict]] = {}
+
+
 def centred_shape_prior(
     body: Body, n_mascons: int = DEFAULT_PRIOR_MASCONS, *, seed: int = 0
 ) -> tuple[MasconSet, dict]:
     """The shape prior centred on its own centre of mass (the origin of the arcs' frame, as
-    the paper's residual architecture needs), and its report (see :func:`fit_shape_prior`)."""
-    mascons, report = fit_shape_prior(body, n_mascons, seed=seed)
-    return mascons.translated(-mascons.centre_of_mass), report
+    the paper's residual architecture needs), and its report (see :func:`fit_shape_prior`);
+    fitted once per body, frame, mascon count and seed in a process."""
+    mesh = body.mesh_m
+    geometry = hashlib.sha1(
+        np.ascontiguousarray(mesh.vertices, dtype=float).tobytes()
+        + np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes()
+    ).hexdigest()
+    key = (body.name, body.gm_m3_s2, body.spin_period_s, tuple(body.origin_m), geometry)
+    key += (int(n_mascons), int(seed))
+    if key not in _CENTRED_PRIORS:
+        mascons, report = fit_shape_prior(body, n_mascons, seed=seed)
+        _CENTRED_PRIORS[key] = (mascons.translated(-mascons.centre_of_mass), report)
+    mascons, report = _CENTRED_PRIORS[key]
+    return mascons, dict(report)
