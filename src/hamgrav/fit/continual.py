@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.arcs import Arcs
 from ..errors import PropagationError
-from .base import Solver, SolveResult
+from .base import SolveResult
 from .estimator import GravityEstimator, validation_split
 
 __all__ = ["StageRecord", "fit_continual"]
@@ -54,11 +54,10 @@ def fit_continual(
     stages: Sequence[Sequence[int]],
     *,
     warm_start: bool = True,
-    warm_solver: Solver | None = None,
     on_stage: Callable[[StageRecord], None] | None = None,
 ) -> list[StageRecord]:
     """Fit ``estimator`` stage by stage; ``stages`` lists the arc indices arriving at each.
-    ``warm_solver`` (default: the estimator's) runs the warm-started stages."""
+    Warm-started stages run the estimator's ``warm_solver`` when it has one."""
     records: list[StageRecord] = []
     seen = np.zeros(0, dtype=int)
     held_out = np.zeros(0, dtype=int)
@@ -77,7 +76,6 @@ def fit_continual(
                 subset,
                 init=theta if warm else None,
                 validation=local_val,
-                solver=warm_solver if warm else None,
             )
         except PropagationError:
             if not warm:
