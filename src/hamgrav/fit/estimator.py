@@ -479,19 +479,15 @@ class GravityEstimator:
             outcome = kinds.pop()
         else:
             outcome = Outcome.ITERATION_CAP
-        summaries = []
-        for k, r in enumerate(results):
-            entry = {"member": k, "init_seed": self.seed + k}
-            if r is None:
-                entry["message"] = "restored from the checkpoint"
-            else:
-                entry |= r.summary()
-                entry["constrained_parameters"] = constrained_parameters(
-                    member_problem, r.params, train
-                )
-            summaries.append(entry)
-        for entry in summaries:
-            entry.setdefault("constrained_parameters", 0)
+        summaries = [
+            {
+                "member": k,
+                "init_seed": self.seed + k,
+                **(r.summary() if r else {"message": "restored from the checkpoint"}),
+                "constrained_parameters": constrained_parameters(member_problem, block, train),
+            }
+            for k, (r, block) in enumerate(zip(results, blocks, strict=True))
+        ]
         history = {
             f"member{k}.{name}": values
             for k, r in enumerate(results)
