@@ -182,8 +182,8 @@ def fit(
     model: Annotated[
         str,
         typer.Option(
-            help="'network-best' (LM, 2 initialisations: recommended), 'network' (the paper's "
-            "Adam protocol) or 'sh:L'."
+            help="'network-best' (the mean of 3 networks fitted by LM: recommended), 'network' "
+            "(the paper's Adam protocol) or 'sh:L'."
         ),
     ] = "network-best",
     hidden: Annotated[str, typer.Option(help="Hidden layer sizes of the network.")] = "24,24",

@@ -79,13 +79,13 @@ class DescentExperimentConfig(CampaignConfig):
         "(the constant-density shape prior; rows shape, shape+shL and shape+network, the "
         "network-best configuration as a residual on it).",
     )
-
     compare_with: str = option(
         "",
         "A results folder of the same campaign without the prior: its first repetition's "
         "curves (same seed) are drawn dashed in the touchdown figure, as in the paper's figure "
         "with both blocks.",
     )
+    shells_rb: tuple[float, ...] = option((1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].")
 
     def check(self) -> None:
         super().check()
@@ -93,8 +93,6 @@ class DescentExperimentConfig(CampaignConfig):
             raise InputError(f"prior must be 'none' or 'shape', got {self.prior!r}")
         if self.compare_with:
             _comparison(self.compare_with)
-
-    shells_rb: tuple[float, ...] = option((1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].")
 
     @classmethod
     def demo(cls) -> DescentExperimentConfig:

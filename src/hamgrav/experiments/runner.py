@@ -117,10 +117,13 @@ def register(experiment: Experiment) -> Experiment:
     return experiment
 
 
-def get_experiment(name: str) -> Experiment:
-    """The registered experiment called ``name``."""
+def _register_all() -> None:
     from . import anomalies, continual, descent, interiors, solvers  # noqa: F401 (registration)
 
+
+def get_experiment(name: str) -> Experiment:
+    """The registered experiment called ``name``."""
+    _register_all()
     if name not in _REGISTRY:
         raise InputError(f"unknown experiment {name!r}; known: {', '.join(experiment_names())}")
     return _REGISTRY[name]
@@ -128,8 +131,7 @@ def get_experiment(name: str) -> Experiment:
 
 def experiment_names() -> list[str]:
     """Names of the registered experiments."""
-    from . import anomalies, continual, descent, interiors, solvers  # noqa: F401 (registration)
-
+    _register_all()
     return sorted(_REGISTRY)
 
 
