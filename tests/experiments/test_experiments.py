@@ -2,6 +2,7 @@
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from hamgrav.cli import app
@@ -161,11 +162,16 @@ def test_descent_with_the_shape_prior_tiny(tmp_path):
     assert "| shape+network |" in readme and "against the shape model alone" in readme
 
 
-def test_descent_rejects_an_unknown_prior(tmp_path):
-    result = runner.invoke(
-        app, ["experiment", "descent", "--prior", "polyhedron", "-o", str(tmp_path / "x")]
-    )
-    assert result.exit_code == 2 and "prior must be 'none' or 'shape'" in result.output
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["descent", "--prior", "polyhedron"], "prior must be 'none' or 'shape'"),
+        (["interiors", "--truths", "marble"], "truths must be among"),
+    ],
+)
+def test_experiment_rejects_an_unknown_choice(tmp_path, args, message):
+    result = runner.invoke(app, ["experiment", *args, "-o", str(tmp_path / "x")])
+    assert result.exit_code == 2 and message in result.output
 
 
 def test_interiors_tiny(tmp_path):
@@ -189,13 +195,6 @@ def test_interiors_tiny(tmp_path):
     readme = (out / "README.md").read_text()
     assert "### Truth: void" in readme and "(paper, head/tail: 15-21 %)" in readme
     assert (out / "residuals.png").stat().st_size > 1000
-
-
-def test_interiors_rejects_an_unknown_truth(tmp_path):
-    result = runner.invoke(
-        app, ["experiment", "interiors", "--truths", "marble", "-o", str(tmp_path / "x")]
-    )
-    assert result.exit_code == 2 and "truths must be among" in result.output
 
 
 def test_anomalies_tiny(tmp_path):
