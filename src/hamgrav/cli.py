@@ -561,9 +561,9 @@ def demo(
     """The descent-planning pipeline on the synthetic contact binary (no data folder needed).
 
     Head twice as dense as the body; 12 orbits x 7 arcs kept above the Brillouin sphere; a
-    353-parameter network (Adam, and Levenberg-Marquardt) against SH 4 and 8; 12 descents
-    from 1.3 R_B. Writes the results, a README, the figures and the arcs (HDF5 and CCSDS
-    OEM) to OUTPUT.
+    353-parameter network (Adam, and Levenberg-Marquardt) against SH 4 and 8, from tracking
+    alone and as residuals on the constant-density shape prior; 12 descents from 1.3 R_B.
+    Writes the results, a README, the figures and the arcs (HDF5 and CCSDS OEM) to OUTPUT.
     """
     from .experiments.descent import DescentExperimentConfig
     from .experiments.runner import get_experiment
@@ -588,7 +588,7 @@ def demo(
     except HamgravError as exc:
         _fail(exc)
     result = report["repetitions"][0]
-    table = Table(title="synthetic contact binary: fitted models (from tracking alone)")
+    table = Table(title="synthetic contact binary: models fitted to the tracking")
     for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):
         table.add_column(escape(col), justify="right", no_wrap=col == "model")
     for name, st in result["models"].items():
@@ -604,7 +604,9 @@ def demo(
     console.print(
         "field errors: relative error of the perturbing potential (1 = no correction); "
         "r = shells in R_B, h30m = 30 m above the surface; misses: distance between the "
-        "touchdown point each model predicts and the true one"
+        "touchdown point each model predicts and the true one; rows named shape...: the "
+        "imaged shape at constant density (known physics) alone, and models of the residual "
+        "on it"
     )
     from .experiments.descent_report import data_coverage
 

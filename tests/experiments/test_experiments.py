@@ -162,10 +162,29 @@ def test_descent_with_the_shape_prior_tiny(tmp_path):
     assert "| shape+network |" in readme and "against the shape model alone" in readme
 
 
+def test_descent_with_both_blocks_tiny(tmp_path):
+    out = tmp_path / "both"
+    args = [
+        "experiment", "descent", *TINY_CAMPAIGN, "--descents", "2", "--sh-degrees", "2",
+        "--hidden", "4", "--lm-iterations", "2", "--adam-steps", "2", "--prior", "both",
+        "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    tracking_alone = {"point-mass", "sh2", "network", "network-best"}
+    assert set(rep["models"]) == tracking_alone | {"shape", "shape+sh2", "shape+network"}
+    assert rep["fits"]["shape+network"]["members"]
+    readme = (out / "README.md").read_text()
+    assert "the rows named `shape...`" in readme
+    # both blocks carry the paper's numbers, each its own
+    assert "| point-mass |" in readme and "| shape+sh2 |" in readme
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["descent", "--prior", "polyhedron"], "prior must be 'none' or 'shape'"),
+        (["descent", "--prior", "polyhedron"], "prior must be 'none', 'shape' or 'both'"),
         (["interiors", "--truths", "marble"], "truths must be among"),
     ],
 )

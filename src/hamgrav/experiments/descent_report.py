@@ -4,6 +4,7 @@ checks of the paper's statements on every repetition, and the known set-up diffe
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -62,6 +63,14 @@ def descent_readme(report: dict, paper: dict) -> list[str]:
             if _prefix(cfg)
             else "`network` is the paper's protocol (Adam, unweighted cost, 12 % hold-out);"
         ),
+        *(
+            [
+                "the rows named `shape...` are the constant-density shape prior alone and "
+                "residuals on it (the paper's lower block);"
+            ]
+            if cfg.get("prior") == "both"
+            else []
+        ),
         f"`{best_row}` is hamgrav's recommended network configuration on the same arcs with the",
         f"same hold-out: the mean of {members} networks of that shape, each fitted on its own from",
         f"its seeded initialisation by {best.get('max_iter', '?')} Levenberg-Marquardt "
@@ -107,7 +116,7 @@ def _beats(rep: dict, name: str, rows: list[str]) -> bool:
 def _checks(reps: list[dict], cfg: dict, paper_median: float) -> list[str]:
     n = len(reps)
     prefix = _prefix(cfg)
-    sh_rows = [k for k in reps[0]["models"] if k.startswith(prefix + "sh")]
+    sh_rows = [k for k in reps[0]["models"] if re.fullmatch(re.escape(prefix) + r"sh\d+", k)]
     best_row = _best_row(cfg)
     h = f"h{cfg['altitude_m']:g}m"
     grows = sum(
