@@ -6,6 +6,8 @@ from typer.testing import CliRunner
 
 from hamgrav.cli import app
 from hamgrav.io.arcs import load_arcs
+from hamgrav.io.files import read_toml
+from hamgrav.sim.campaign import Campaign
 
 runner = CliRunner()
 
@@ -70,6 +72,9 @@ def test_simulate_writes_arcs(tmp_path):
     assert result.exit_code == 0, result.output
     arcs = load_arcs(out)
     assert arcs.n_arcs == 4 and arcs.config["seed"] == 5 and arcs.interior == "uniform"
+    # the campaign travels with the arcs and reads back whole, its frame included
+    assert Campaign.from_dict(arcs.config) == Campaign.from_dict(read_toml(toml))
+    assert arcs.config["frame"] == "centre-of-mass"
 
 
 @pytest.mark.parametrize(
@@ -82,6 +87,7 @@ def test_simulate_writes_arcs(tmp_path):
             "unknown key(s) in [tracking] ['cadense_s']",
         ),
         ('body = "synthetic"\ninterior = "solid"\n[orbits]\ncount=1', "interior 'solid'"),
+        ('body = "synthetic"\nframe = "inertial"\n[orbits]\ncount=1', "frame 'inertial'"),
         ("body = ", "not valid TOML"),
     ],
 )

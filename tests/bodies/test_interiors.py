@@ -6,6 +6,7 @@ from hamgrav.bodies.polyhedron import polyhedron_potential
 from hamgrav.core.fields import relative_field_error, shell_points
 from hamgrav.core.geometry import points_inside
 from hamgrav.core.mascons import mascon_potential
+from hamgrav.errors import InputError
 
 
 @pytest.mark.parametrize("interior", INTERIORS)
@@ -22,6 +23,20 @@ def test_not_recentred_keeps_mesh_frame(synthetic):
     truth = build_truth(synthetic, "head-tail", n_mascons=100, recentre=False)
     assert np.linalg.norm(truth.mascons.centre_of_mass) > 0.05  # the head pulls it along x
     assert truth.body.origin_m == (0.0, 0.0, 0.0)
+
+
+def test_shape_frame_keeps_the_centre_of_mass_offset(synthetic):
+    com = build_truth(synthetic, "head-tail", n_mascons=100)
+    shape = build_truth(synthetic, "head-tail", n_mascons=100, frame="shape")
+    # origin at the shape's constant-density centroid, where imaging would put it ...
+    assert np.allclose(shape.body.constant_density_centre_of_mass, 0.0, atol=1e-9)
+    # ... so the denser head pulls the centre of mass off the origin, as far as the two
+    # frames' origins are apart
+    offset = np.asarray(shape.parameters["recentred_by"]) - com.parameters["recentred_by"]
+    assert np.linalg.norm(shape.mascons.centre_of_mass) > 0.05
+    assert np.allclose(shape.mascons.centre_of_mass, -offset, atol=1e-12)
+    with pytest.raises(InputError, match="unknown frame 'barycentre'"):
+        build_truth(synthetic, "uniform", n_mascons=10, frame="barycentre")
 
 
 def test_volume_samples_fill_the_shape(synthetic):

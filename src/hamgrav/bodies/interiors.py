@@ -12,8 +12,12 @@ sum to 1 (canonical units: the body's GM). Interiors:
 - ``anomalies``: ``count`` dense point masses of ``mass_fraction`` each, buried at ``depth_ratio``
   of the local surface radius, the background rescaled to keep the total.
 
-A :class:`Truth` is an interior together with the body expressed in the interior's
-centre-of-mass frame (when recentred), so that shape, surface sets and mascons share one frame.
+A :class:`Truth` is an interior together with the body expressed in one frame (when
+recentred), so that shape, surface sets and mascons share it: ``frame="centre-of-mass"`` puts
+the origin at the interior's centre of mass; ``frame="shape"`` at the constant-density
+centroid of the shape (what imaging gives), so an interior whose mass is off that centroid
+keeps the offset as a degree-1 part of its perturbing potential, which SH from degree 2
+cannot represent.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from .catalogue import Body
 
 __all__ = [
     "INTERIORS",
+    "TRUTH_FRAMES",
     "DEFAULT_TRUTH_MASCONS",
     "Truth",
     "build_truth",
@@ -40,6 +45,8 @@ __all__ = [
 ]
 
 INTERIORS = ("uniform", "head-tail", "void", "anomalies")
+#: Origins of a recentred truth's frame (see the module docstring).
+TRUTH_FRAMES = ("centre-of-mass", "shape")
 
 #: Default number of truth mascons: accurate to well under 1 % of the polyhedron potential at
 #: 1.05 R_B and small enough to propagate quickly (the paper's 67P truth has 240).
@@ -188,6 +195,7 @@ def build_truth(
     n_mascons: int = DEFAULT_TRUTH_MASCONS,
     seed: int = 0,
     recentre: bool = True,
+    frame: str = "centre-of-mass",
     contrast: float = 2.0,
     void_fraction: float = 0.18,
     void_offset: float = 0.5,
@@ -199,6 +207,8 @@ def build_truth(
     """Build a truth interior for ``body`` (see the module docstring for the interiors)."""
     if interior not in INTERIORS:
         raise InputError(f"unknown interior {interior!r}; choose one of {', '.join(INTERIORS)}")
+    if frame not in TRUTH_FRAMES:
+        raise InputError(f"unknown frame {frame!r}; choose one of {', '.join(TRUTH_FRAMES)}")
     if n_mascons < 1:
         raise InputError("n_mascons must be at least 1")
     rng = np.random.default_rng(seed)
@@ -259,8 +269,12 @@ def build_truth(
             np.concatenate([mascons.masses * scale, extra.masses]),
         )
     if recentre:
-        com = mascons.centre_of_mass
-        body = body.recentred(com)
-        mascons = mascons.translated(-com)
-        parameters["recentred_by"] = com.tolist()
+        if frame == "centre-of-mass":
+            origin = mascons.centre_of_mass
+        else:
+            origin = np.asarray(body.constant_density_centre_of_mass, dtype=float)
+        body = body.recentred(origin)
+        mascons = mascons.translated(-origin)
+        parameters["recentred_by"] = origin.tolist()
+        parameters["frame"] = frame
     return Truth(body=body, mascons=mascons, interior=interior, parameters=parameters)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..bodies.evaluation import evaluation_sets
-from ..bodies.interiors import INTERIORS, Truth
+from ..bodies.interiors import INTERIORS, TRUTH_FRAMES, Truth
 from ..core.arcs import Arcs
 from ..core.fields import field_errors
 from ..errors import InputError
@@ -35,10 +35,18 @@ class CampaignConfig(ExperimentConfig):
     arcs_per_orbit: int = option(7, "Arcs per orbit (40 samples at 14 s each).")
     window_spin_periods: float = option(1.0, "Tracking window of each orbit [spin periods].")
     min_radius_rb: float = option(0.0, "Redraw orbits dipping below this radius [R_B] (0: off).")
+    frame: str = option(
+        "centre-of-mass",
+        "Origin of the body frame (arcs, central term, SH, evaluation shells): 'centre-of-mass' "
+        "of the truth, or 'shape', the constant-density centroid of the imaged shape (the "
+        "truth's offset from it stays in the perturbing potential as a degree-1 part).",
+    )
 
     def check(self) -> None:
         if self.interior not in INTERIORS:
             raise InputError(f"interior must be one of {', '.join(INTERIORS)}")
+        if self.frame not in TRUTH_FRAMES:
+            raise InputError(f"frame must be one of {', '.join(TRUTH_FRAMES)}")
         for name in ("radius_rb", "inclination_deg"):
             if len(getattr(self, name)) != 2:
                 raise InputError(f"{name} must be a range of two numbers (low, high)")
@@ -51,7 +59,15 @@ class CampaignConfig(ExperimentConfig):
             window_spin_periods=self.window_spin_periods,
             min_radius_rb=self.min_radius_rb,
         )
-        return Campaign(self.body, self.interior, self.n_mascons, seed, tuple(families), tracking)
+        return Campaign(
+            self.body,
+            self.interior,
+            self.n_mascons,
+            seed,
+            tuple(families),
+            tracking,
+            frame=self.frame,
+        )
 
 
 def simulate(config: CampaignConfig, ctx: RunContext) -> tuple[Truth, Arcs]:

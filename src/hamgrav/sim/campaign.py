@@ -6,6 +6,7 @@ Example::
     interior = "head-tail"    # uniform | head-tail | void | anomalies
     n_mascons = 600           # truth mascons
     seed = 1
+    frame = "centre-of-mass"  # or "shape": origin at the shape's constant-density centroid
 
     [orbits]                  # either a grid over ranges ...
     count = 16
@@ -27,7 +28,13 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from ..bodies.catalogue import load_body
-from ..bodies.interiors import DEFAULT_TRUTH_MASCONS, INTERIORS, Truth, build_truth
+from ..bodies.interiors import (
+    DEFAULT_TRUTH_MASCONS,
+    INTERIORS,
+    TRUTH_FRAMES,
+    Truth,
+    build_truth,
+)
 from ..core.arcs import Arcs
 from ..errors import InputError
 from ..io.files import read_toml
@@ -40,7 +47,7 @@ class CampaignError(InputError):
     """A campaign description is invalid; the message names the key and the fix."""
 
 
-_TOP_KEYS = {"body", "interior", "n_mascons", "seed", "orbits", "tracking"}
+_TOP_KEYS = {"body", "interior", "n_mascons", "seed", "frame", "orbits", "tracking"}
 _ORBIT_KEYS = {"count", "radius_rb", "inclination_deg", "families"}
 _TRACKING_KEYS = {f.name for f in fields(TrackingConfig)}
 
@@ -48,7 +55,8 @@ _TRACKING_KEYS = {f.name for f in fields(TrackingConfig)}
 @dataclass(frozen=True)
 class Campaign:
     """A tracking campaign: body name, truth interior and mascon count, seed, orbit families
-    (radius [R_B], inclination [deg]) and tracking settings (physical units)."""
+    (radius [R_B], inclination [deg]), tracking settings (physical units) and the origin of
+    the truth's frame (see :data:`hamgrav.bodies.interiors.TRUTH_FRAMES`)."""
 
     body: str
     interior: str
@@ -56,6 +64,7 @@ class Campaign:
     seed: int
     families: tuple[OrbitFamily, ...]
     tracking: TrackingConfig
+    frame: str = "centre-of-mass"
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "campaign") -> Campaign:
@@ -72,6 +81,9 @@ class Campaign:
         interior = data.get("interior", "uniform")
         if interior not in INTERIORS:
             fail(f"interior {interior!r} is not one of {', '.join(INTERIORS)}")
+        frame = data.get("frame", "centre-of-mass")
+        if frame not in TRUTH_FRAMES:
+            fail(f"frame {frame!r} is not one of {', '.join(TRUTH_FRAMES)}")
         orbits = data.get("orbits")
         if not isinstance(orbits, dict):
             fail("an [orbits] table is required")
@@ -108,6 +120,7 @@ class Campaign:
             seed=seed,
             families=tuple(families),
             tracking=tracking_config,
+            frame=frame,
         )
 
     def as_dict(self) -> dict:
@@ -117,6 +130,7 @@ class Campaign:
             "interior": self.interior,
             "n_mascons": self.n_mascons,
             "seed": self.seed,
+            "frame": self.frame,
             "orbits": {"families": [[f.radius_rb, f.inclination_deg] for f in self.families]},
             "tracking": {f.name: getattr(self.tracking, f.name) for f in fields(TrackingConfig)},
         }
@@ -132,10 +146,16 @@ def load_campaign(path: str | Path) -> Campaign:
 
 
 def build_campaign_truth(campaign: Campaign, folder=None) -> Truth:
-    """The campaign's truth interior, centred on its centre of mass (catalogue bodies read
-    from ``folder``, default :func:`hamgrav.bodies.catalogue.bodies_dir`)."""
+    """The campaign's truth interior in the campaign's frame (catalogue bodies read from
+    ``folder``, default :func:`hamgrav.bodies.catalogue.bodies_dir`)."""
     body = load_body(campaign.body, folder=folder)
-    return build_truth(body, campaign.interior, n_mascons=campaign.n_mascons, seed=campaign.seed)
+    return build_truth(
+        body,
+        campaign.interior,
+        n_mascons=campaign.n_mascons,
+        seed=campaign.seed,
+        frame=campaign.frame,
+    )
 
 
 def run_campaign(campaign: Campaign, progress=None, folder=None) -> tuple[Truth, Arcs]:
