@@ -1,3 +1,4 @@
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -12,6 +13,7 @@ from hamgrav.core.terms import (
     SphericalHarmonics,
     sh_coefficients_of_mascons,
 )
+from hamgrav.errors import PropagationError
 from hamgrav.fit.adam import Adam
 from hamgrav.fit.continual import fit_continual
 from hamgrav.fit.estimator import GravityEstimator
@@ -65,6 +67,21 @@ def test_kaula_diagonal_and_scan(sh_world):
     assert alpha == 1e-8  # noiseless data: the least regularised fit is the best
     assert [a for a, _ in scores] == [1e-8, 1e-2, 1e2]
     assert scores[-1][1] > scores[0][1]
+
+
+def test_kaula_scan_never_keeps_a_weight_whose_fit_does_not_propagate(sh_world):
+    model, c_true, arcs = sh_world
+    problem = ArcProblem(model, arcs)
+
+    def metric(c):
+        # the held-out arcs do not propagate under the least regularised fit
+        if np.linalg.norm(c - c_true) < 1e-3:
+            raise PropagationError("arcs [3] did not propagate to the end")
+        return float(np.linalg.norm(c - c_true))
+
+    alpha, _, scores = scan_kaula(problem, metric, alphas=(1e-8, 1e-2, 1e2))
+    assert scores[0] == (1e-8, math.inf)
+    assert alpha == 1e-2 and math.isfinite(scores[1][1])
 
 
 def test_warm_start_converges_faster(sh_world, synthetic_truth):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
@@ -9,6 +10,7 @@ from functools import partial
 import numpy as np
 
 from ..core.problem import ArcProblem
+from ..errors import PropagationError
 from .base import SolveResult
 from .lm import LevenbergMarquardt
 
@@ -39,10 +41,22 @@ def scan_kaula(
     The fits are independent work units of plain data: ``mapper`` (builtin ``map`` by default,
     or a Dask client's) runs them; the metric is evaluated here.
 
+    A fit whose parameters do not propagate the metric's arcs (a weak weight can let a high
+    degree blow up along an arc that grazes the surface) scores infinity, and is never kept
+    while another weight scores finite.
+
     Returns (best alpha, best SolveResult, list of (alpha, metric value)).
     """
     solver = solver or LevenbergMarquardt()
     results = list(mapper(partial(_solve_with_alpha, problem, solver, theta0, train), alphas))
-    scores = [(float(a), float(metric(r.params))) for a, r in zip(alphas, results, strict=True)]
+
+    def score(params) -> float:
+        try:
+            value = float(metric(params))
+        except PropagationError:
+            return math.inf
+        return value if math.isfinite(value) else math.inf
+
+    scores = [(float(a), score(r.params)) for a, r in zip(alphas, results, strict=True)]
     k = int(np.argmin([s for _, s in scores]))
     return scores[k][0], results[k], scores
