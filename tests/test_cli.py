@@ -88,6 +88,7 @@ def test_simulate_writes_arcs(tmp_path):
         ),
         ('body = "synthetic"\ninterior = "solid"\n[orbits]\ncount=1', "interior 'solid'"),
         ('body = "synthetic"\nframe = "inertial"\n[orbits]\ncount=1', "frame 'inertial'"),
+        ('body = "synthetic"\ncontrast = -2\n[orbits]\ncount=1', "contrast must be a positive"),
         ("body = ", "not valid TOML"),
     ],
 )

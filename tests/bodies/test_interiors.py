@@ -150,3 +150,12 @@ def test_the_centred_shape_prior_is_fitted_once_per_body_and_seed(synthetic, mon
     assert shape_prior.centred_shape_prior(synthetic, 20, seed=4)[1]["n_mascons"] > 0
     shape_prior.centred_shape_prior(synthetic, 20, seed=5)
     assert calls == [4, 5]
+
+
+def test_campaign_frame_and_contrast_reach_the_truth():
+    from hamgrav.sim.campaign import Campaign, build_campaign_truth
+
+    data = {"body": "synthetic", "interior": "head-tail", "n_mascons": 50, "orbits": {"count": 1}}
+    truth = build_campaign_truth(Campaign.from_dict({**data, "contrast": 1.5, "frame": "shape"}))
+    assert truth.parameters["contrast"] == 1.5 and truth.parameters["frame"] == "shape"
+    assert build_campaign_truth(Campaign.from_dict(data)).parameters["contrast"] == 2.0

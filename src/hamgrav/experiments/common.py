@@ -42,7 +42,15 @@ class CampaignConfig(ExperimentConfig):
         "truth's offset from it stays in the perturbing potential as a degree-1 part).",
     )
 
+    contrast: float = option(
+        2.0,
+        "Head-tail interior: density of the head lobe over the rest's, total mass fixed (the "
+        "shared reference file mascons_head_tail_2x uses 1.63 on the same head).",
+    )
+
     def check(self) -> None:
+        if not self.contrast > 0:
+            raise InputError(f"contrast must be positive, got {self.contrast}")
         if self.interior not in INTERIORS:
             raise InputError(f"interior must be one of {', '.join(INTERIORS)}")
         if self.frame not in TRUTH_FRAMES:
@@ -67,6 +75,7 @@ class CampaignConfig(ExperimentConfig):
             tuple(families),
             tracking,
             frame=self.frame,
+            contrast=self.contrast,
         )
 
 

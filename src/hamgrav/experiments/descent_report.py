@@ -171,8 +171,8 @@ def _checks(reps: list[dict], cfg: dict, paper_median: float) -> list[str]:
     interior = cfg["interior"]
     if cfg["body"] == "itokawa" and interior == "head-tail":
         interior = (
-            "the head lobe of the shared reference file twice as dense (that file itself uses "
-            "a 1.63 contrast)"
+            f"the head lobe of the shared reference file {cfg.get('contrast', 2.0):g} times as "
+            "dense as the rest (that file itself uses a 1.63 contrast)"
         )
     return out + [
         "",

@@ -7,6 +7,7 @@ Example::
     n_mascons = 600           # truth mascons
     seed = 1
     frame = "centre-of-mass"  # or "shape": origin at the shape's constant-density centroid
+    contrast = 2.0            # head-tail only: density of the head over the rest
 
     [orbits]                  # either a grid over ranges ...
     count = 16
@@ -47,7 +48,7 @@ class CampaignError(InputError):
     """A campaign description is invalid; the message names the key and the fix."""
 
 
-_TOP_KEYS = {"body", "interior", "n_mascons", "seed", "frame", "orbits", "tracking"}
+_TOP_KEYS = {"body", "interior", "n_mascons", "seed", "frame", "contrast", "orbits", "tracking"}
 _ORBIT_KEYS = {"count", "radius_rb", "inclination_deg", "families"}
 _TRACKING_KEYS = {f.name for f in fields(TrackingConfig)}
 
@@ -55,8 +56,9 @@ _TRACKING_KEYS = {f.name for f in fields(TrackingConfig)}
 @dataclass(frozen=True)
 class Campaign:
     """A tracking campaign: body name, truth interior and mascon count, seed, orbit families
-    (radius [R_B], inclination [deg]), tracking settings (physical units) and the origin of
-    the truth's frame (see :data:`hamgrav.bodies.interiors.TRUTH_FRAMES`)."""
+    (radius [R_B], inclination [deg]), tracking settings (physical units), the origin of
+    the truth's frame (see :data:`hamgrav.bodies.interiors.TRUTH_FRAMES`) and, for the
+    head-tail interior, the head's density over the rest's (``contrast``)."""
 
     body: str
     interior: str
@@ -65,6 +67,7 @@ class Campaign:
     families: tuple[OrbitFamily, ...]
     tracking: TrackingConfig
     frame: str = "centre-of-mass"
+    contrast: float = 2.0
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "campaign") -> Campaign:
@@ -84,6 +87,9 @@ class Campaign:
         frame = data.get("frame", "centre-of-mass")
         if frame not in TRUTH_FRAMES:
             fail(f"frame {frame!r} is not one of {', '.join(TRUTH_FRAMES)}")
+        contrast = data.get("contrast", 2.0)
+        if isinstance(contrast, bool) or not isinstance(contrast, int | float) or contrast <= 0:
+            fail(f"contrast must be a positive number (head density over the rest): {contrast!r}")
         orbits = data.get("orbits")
         if not isinstance(orbits, dict):
             fail("an [orbits] table is required")
@@ -121,6 +127,7 @@ class Campaign:
             families=tuple(families),
             tracking=tracking_config,
             frame=frame,
+            contrast=float(contrast),
         )
 
     def as_dict(self) -> dict:
@@ -131,6 +138,7 @@ class Campaign:
             "n_mascons": self.n_mascons,
             "seed": self.seed,
             "frame": self.frame,
+            "contrast": self.contrast,
             "orbits": {"families": [[f.radius_rb, f.inclination_deg] for f in self.families]},
             "tracking": {f.name: getattr(self.tracking, f.name) for f in fields(TrackingConfig)},
         }
@@ -155,6 +163,7 @@ def build_campaign_truth(campaign: Campaign, folder=None) -> Truth:
         n_mascons=campaign.n_mascons,
         seed=campaign.seed,
         frame=campaign.frame,
+        contrast=campaign.contrast,
     )
 
 
