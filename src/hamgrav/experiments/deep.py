@@ -80,8 +80,9 @@ class DeepExperimentConfig(CampaignConfig):
     )
     stages: int = option(
         6,
-        "Stages the orbits arrive in (in a fixed order, see the module docstring); each "
-        "stage's fits are warm-started from the previous stage's.",
+        "Stages the orbits arrive in, in a fixed order: each stage brings one orbit per start "
+        "radius, at different inclinations; each stage's fits are warm-started from the "
+        "previous stage's.",
     )
     sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees fitted (LM).")
     map_degrees: tuple[int, ...] = option(
