@@ -1,6 +1,6 @@
 import numpy as np
 
-from hamgrav.core.fields import field_errors, shell_points
+from hamgrav.core.fields import field_errors, pointwise_field_errors, shell_points
 from hamgrav.core.mascons import MasconSet, mascon_potential
 from hamgrav.core.model import Model
 from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
@@ -33,3 +33,17 @@ def test_errors_are_of_the_whole_model_against_the_perturbation():
     sh = SphericalHarmonics(2, 1.0)
     residual = Model((MasconTerm(prior),), sh)
     assert np.isclose(field_errors(residual, np.zeros(sh.n_params), truth, pts)["r1.5"], alone)
+
+
+def test_pointwise_errors_are_the_one_point_field_error():
+    truth, prior = _truth_and_prior()
+    pts = shell_points(1.3, 50, seed=2)
+    model = Model((MasconTerm(prior),))
+    pointwise = pointwise_field_errors(model, np.zeros(0), truth, pts)
+    assert pointwise.shape == (50,)
+    for k in (0, 17, 49):
+        one = field_errors(model, np.zeros(0), truth, {"p": pts[k : k + 1]})["p"]
+        assert np.isclose(pointwise[k], one, rtol=1e-12)
+    # no correction is 1 at every point
+    none = pointwise_field_errors(Model((PointMass(),)), np.zeros(0), truth, pts)
+    assert np.allclose(none, 1.0, rtol=1e-12)

@@ -1,6 +1,7 @@
 """Tiny configurations of each experiment, through the command line and the runner."""
 
 import json
+import re
 
 import pytest
 from typer.testing import CliRunner
@@ -186,6 +187,9 @@ def test_descent_with_both_blocks_tiny(tmp_path):
     [
         (["descent", "--prior", "polyhedron"], "prior must be 'none', 'shape' or 'both'"),
         (["interiors", "--truths", "marble"], "truths must be among"),
+        (["deep", "--map-degrees", "5"], "map_degrees must be among sh_degrees"),
+        (["deep", "--deep-bins-rb", "0.9,0.5"], "deep_bins_rb must be two or more increasing"),
+        (["deep", "--stages", "19"], "stages must lie between 1 and --orbits (18)"),
     ],
 )
 def test_experiment_rejects_an_unknown_choice(tmp_path, args, message):
@@ -237,3 +241,61 @@ def test_anomalies_tiny(tmp_path):
     readme = (out / "README.md").read_text()
     assert "| shape+network |" in readme and "Kaula alpha chosen" in readme
     assert (out / "maps.png").stat().st_size > 1000
+
+
+def test_deep_tiny(tmp_path):
+    out = tmp_path / "deep"
+    args = [
+        "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
+        "--stages", "2", "--sh-degrees", "2,3", "--map-degrees", "2,3", "--hidden", "4",
+        "--lm-iterations", "3", "--warm-iterations", "2", "--altitude-m", "30",
+        "--map-points", "31", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    rep = data["repetitions"][0]
+    models = {"sh2", "sh3", "network-best"}
+    # the tracked samples: all of them, ordered quartiles, none below the redraw floor
+    radii = rep["radius_rb"]
+    assert radii["n_samples"] == rep["n_arcs"] * 40 == 8 * 40
+    quartiles = [radii[k] for k in ("min", "q1", "median", "q3", "max")]
+    assert quartiles == sorted(quartiles) and radii["min"] >= 1.0 and radii["below_floor"] == 0
+    # every model evaluated: exterior shells, the deep set as a whole and by bin, the patches
+    for key in ("exterior_error", "deep_error", "patch_median"):
+        assert set(rep[key]) == models
+        assert all(v is not None and 0.0 < v < 1e6 for v in rep[key].values()), key
+    labels = list(rep["deep_bin_points"])
+    assert labels == ["0.25-0.45", "0.45-0.55", "0.55-0.65", "0.65-0.75", "0.75-0.85", "0.85-0.95"]
+    assert all(re.fullmatch(r"\d\.\d\d-\d\.\d\d", k) for k in labels)
+    assert all(n > 0 for n in rep["deep_bin_points"].values())
+    assert set(rep["deep_bins"]) == models
+    for by_bin in rep["deep_bins"].values():
+        assert list(by_bin) == labels and all(0.0 < v < 1e6 for v in by_bin.values())
+    # degree 2 learned the elongation outside the data ...
+    assert rep["exterior_error"]["sh2"] < 0.5
+    # ... and inside the Brillouin sphere the same coefficients are amplified
+    assert rep["deep_error"]["sh2"] > rep["exterior_error"]["sh2"]
+    assert rep["patch_points"] > 0 and 0.0 < rep["patch_inside_brillouin"] <= 1.0
+    net = rep["summary"]["network-best"]
+    assert net["deepest_bin"] == rep["deep_bins"]["network-best"]["0.25-0.45"]
+    assert net["worst_bin"] == max(rep["deep_bins"]["network-best"].values())
+    # the stages: the orbits arrive once each, every model warm-started after the first
+    stages = rep["stages"]
+    assert [s["n_arcs"] for s in stages] == [4, 8]
+    assert sorted(k for s in stages for k in s["orbits"]) == [0, 1, 2, 3]
+    assert all(not f["warm_started"] for f in stages[0]["fits"].values())
+    assert all(f["warm_started"] for f in stages[1]["fits"].values())
+    assert stages[1]["exterior_error"] == rep["exterior_error"]
+    agg = data["aggregate"]
+    assert agg["deep_bins"]["sh2"]["0.25-0.45"]["median"] == rep["deep_bins"]["sh2"]["0.25-0.45"]
+    assert agg["summary"]["network-best"]["patch_median"]["n"] == 1
+    readme = (out / "README.md").read_text()
+    assert "| quantity | ours | paper | target | met |" in readme
+    assert "| 0.65 / 1.34 / 45 |" in readme and "| <= 0.29 | " in readme and " of 1 |" in readme
+    assert "| network-best |" in readme and "| 0.25-0.45 |" in readme
+    for name in ("geometry.png", "deep_bins.png", "maps.png"):
+        assert (out / name).stat().st_size > 1000
+        assert f"- `{name}`: " in readme
+    again = runner.invoke(app, ["experiment", "readme", str(out)])
+    assert again.exit_code == 0 and (out / "README.md").read_text() == readme

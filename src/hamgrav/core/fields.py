@@ -20,7 +20,9 @@ __all__ = [
     "shell_points",
     "relative_field_error",
     "perturbation_ratio",
+    "model_perturbing_potential",
     "field_errors",
+    "pointwise_field_errors",
 ]
 
 
@@ -63,15 +65,34 @@ def perturbation_ratio(mascons: MasconSet, points: np.ndarray) -> float:
     return float(np.median(ratio))
 
 
+def model_perturbing_potential(model: Model, params: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The whole ``model``'s potential at ``params`` (known part plus learnable term) minus the
+    central term 1/r, at canonical ``points`` (n, 3); returns (n,) [canonical]: the model's
+    counterpart of :func:`perturbing_potential`."""
+    v_model, _ = evaluate_field(model, params, points, which="total")
+    return v_model - central_potential(points)
+
+
 def field_errors(
     model: Model, params: np.ndarray, truth: MasconSet, sets: dict[str, np.ndarray]
 ) -> dict[str, float]:
     """Relative field error of the whole ``model`` at ``params`` (known part plus learnable
     term) against the truth's perturbing potential, on each named point set (canonical points
     (n, 3)); see the module docstring. 1.0 for the point mass alone."""
-    out = {}
-    for name, pts in sets.items():
-        v_model, _ = evaluate_field(model, params, pts, which="total")
-        target = perturbing_potential(truth, pts)
-        out[name] = relative_field_error(v_model - central_potential(pts), target)
-    return out
+    return {
+        name: relative_field_error(
+            model_perturbing_potential(model, params, pts), perturbing_potential(truth, pts)
+        )
+        for name, pts in sets.items()
+    }
+
+
+def pointwise_field_errors(
+    model: Model, params: np.ndarray, truth: MasconSet, points: np.ndarray
+) -> np.ndarray:
+    """|V_model - V_truth| / |V_truth| of the perturbing potentials at each of ``points``
+    (n, 3), canonical; returns (n,), dimensionless: the one-point form of
+    :func:`relative_field_error` (1 = no correction there). Where the truth's perturbing
+    potential crosses zero the ratio grows without bound for every model."""
+    target = perturbing_potential(truth, points)
+    return np.abs(model_perturbing_potential(model, params, points) - target) / np.abs(target)

@@ -118,7 +118,7 @@ def register(experiment: Experiment) -> Experiment:
 
 
 def _register_all() -> None:
-    from . import anomalies, continual, descent, interiors, solvers  # noqa: F401 (registration)
+    from . import anomalies, continual, deep, descent, interiors, solvers  # noqa: F401 (registers)
 
 
 def get_experiment(name: str) -> Experiment:

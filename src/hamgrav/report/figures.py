@@ -11,7 +11,36 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-__all__ = ["campaign_figure", "miss_cdf_figure", "logdet_figure"]
+__all__ = ["campaign_figure", "orbits_and_radii_figure", "miss_cdf_figure", "logdet_figure"]
+
+
+def _shape_and_arcs_3d(ax, vertices_m, faces, arc_positions_m, arc_trajectory) -> list:
+    """The shape and the arcs (n, m, 3) [m] on a 3-D axis, one colour per trajectory; returns
+    the colours (indexed by trajectory)."""
+    ax.plot_trisurf(
+        vertices_m[:, 0],
+        vertices_m[:, 1],
+        vertices_m[:, 2],
+        triangles=faces,
+        color="0.7",
+        linewidth=0,
+        alpha=0.6,
+    )
+    n_traj = int(np.max(arc_trajectory)) + 1 if len(arc_trajectory) else 1
+    colours = [tuple(c) for c in matplotlib.colormaps["viridis"](np.linspace(0, 1, n_traj))]
+    for q, k in zip(arc_positions_m, arc_trajectory, strict=True):
+        ax.plot(q[:, 0], q[:, 1], q[:, 2], color=colours[int(k)], lw=1.5)
+    return colours
+
+
+def _cube_limits(ax, lim: float) -> None:
+    """Equal [-lim, lim] limits [m] and labelled axes on a 3-D axis."""
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
+    ax.set_zlim(-lim, lim)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
 
 
 def campaign_figure(
@@ -31,15 +60,7 @@ def campaign_figure(
 
     fig = Figure(figsize=(11, 5))
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
-    ax3.plot_trisurf(
-        vertices_m[:, 0],
-        vertices_m[:, 1],
-        vertices_m[:, 2],
-        triangles=faces,
-        color="0.7",
-        linewidth=0,
-        alpha=0.6,
-    )
+    colours = _shape_and_arcs_3d(ax3, vertices_m, faces, arc_positions_m, arc_trajectory)
     ax2 = fig.add_subplot(1, 2, 2)
     mesh = trimesh.Trimesh(vertices_m, faces, process=False)
     section = mesh.section(plane_origin=[0, 0, 0], plane_normal=[0, 0, 1])
@@ -49,25 +70,49 @@ def campaign_figure(
     angle = np.linspace(0, 2 * np.pi, 200)
     r_b = brillouin_radius_m
     ax2.plot(r_b * np.cos(angle), r_b * np.sin(angle), "k--", lw=0.8, label="Brillouin sphere")
-    n_traj = int(np.max(arc_trajectory)) + 1 if len(arc_trajectory) else 1
-    colours = [tuple(c) for c in matplotlib.colormaps["viridis"](np.linspace(0, 1, n_traj))]
     for q, k in zip(arc_positions_m, arc_trajectory, strict=True):
-        ax3.plot(q[:, 0], q[:, 1], q[:, 2], color=colours[int(k)], lw=1.5)
         ax2.plot(q[:, 0], q[:, 1], color=colours[int(k)], lw=1.5)
     for path in paths_m:
         ax3.plot(path[:, 0], path[:, 1], path[:, 2], color="C3", lw=0.8)
         ax2.plot(path[:, 0], path[:, 1], color="C3", lw=0.8)
-    lim = 2.2 * r_b
-    ax3.set_xlim(-lim, lim)
-    ax3.set_ylim(-lim, lim)
-    ax3.set_zlim(-lim, lim)
-    ax3.set_xlabel("x [m]")
-    ax3.set_ylabel("y [m]")
-    ax3.set_zlabel("z [m]")
+    _cube_limits(ax3, 2.2 * r_b)
     ax2.set_aspect("equal")
     ax2.set_xlabel("x [m]")
     ax2.set_ylabel("y [m]")
     ax2.legend(loc="upper right", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def orbits_and_radii_figure(
+    vertices_m: np.ndarray,
+    faces: np.ndarray,
+    brillouin_radius_m: float,
+    arc_positions_m: np.ndarray,
+    arc_trajectory: np.ndarray,
+    *,
+    shaded_rb: tuple[float, float] | None = None,
+    title: str = "",
+) -> Figure:
+    """Where the data are: the shape and the tracked arcs (n, m, 3) [m] in the body frame (a
+    3-D view), and the histogram of the samples' radii in units of the Brillouin radius, R_B
+    marked; ``shaded_rb`` (low, high) [R_B] shades an evaluation range (e.g. the deep-region
+    bins) to show whether samples reach it."""
+    fig = Figure(figsize=(11, 4.8))
+    ax3 = fig.add_subplot(1, 2, 1, projection="3d")
+    _shape_and_arcs_3d(ax3, vertices_m, faces, arc_positions_m, arc_trajectory)
+    radii = np.linalg.norm(arc_positions_m, axis=-1).ravel() / brillouin_radius_m
+    _cube_limits(ax3, max(1.1, float(radii.max(initial=1.0))) * brillouin_radius_m)
+    ax = fig.add_subplot(1, 2, 2)
+    if shaded_rb is not None:
+        ax.axvspan(*shaded_rb, color="0.85", label="evaluation bins")
+    ax.hist(radii, bins=40, color="C0", label=f"{radii.size} tracked samples")
+    ax.axvline(1.0, color="k", ls="--", lw=1, label="Brillouin radius")
+    ax.set_xlabel("r / R_B")
+    ax.set_ylabel("samples")
+    ax.set_xlim(left=min(shaded_rb[0] if shaded_rb else 1.0, float(radii.min(initial=1.0))) - 0.05)
+    ax.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     return fig
