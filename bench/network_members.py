@@ -9,7 +9,11 @@ lowest validation cost (single networks), the r1.2 and h30m field errors and the
 is the measurement behind network-best being an ensemble rather than the best-validation
 restart.
 
-    python bench/network_members.py --seeds 0-7 [--members 3] [--json]
+    python bench/network_members.py --seeds 0-7 [--members 3] [--max-iter 30] [--json]
+
+``--max-iter`` caps each single fit's LM iterations (network-best's own cap by default): the
+measurement behind the cost-quality trade of the ensemble (fit time scales with members x
+iterations).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -36,7 +41,7 @@ def _seeds(text: str) -> list[int]:
     return [int(v) for v in text.split(",")]
 
 
-def one_draw(seed: int, members: int) -> list[dict]:
+def one_draw(seed: int, members: int, max_iter: int | None = None) -> list[dict]:
     """Rows (plain data) for one campaign draw."""
     config = DescentExperimentConfig()
     truth, arcs = simulate(config, RunContext(seed=seed))
@@ -58,9 +63,12 @@ def one_draw(seed: int, members: int) -> list[dict]:
             "landed": stats["landed"],
         }
 
+    settings = preset("network-best", members=1)
+    if max_iter is not None:
+        settings["solver"] = replace(settings["solver"], max_iter=max_iter)
     rows, blocks = [], []
     for k in range(members):
-        est = GravityEstimator(body=truth.body, seed=seed, **preset("network-best", members=1))
+        est = GravityEstimator(body=truth.body, seed=seed, **settings)
         model, _ = est.build_model(arcs)
         est.fit(arcs, init=est.initial_params(model, arcs, seed=seed + k))
         blocks.append(est.params_)
@@ -80,7 +88,12 @@ def one_draw(seed: int, members: int) -> list[dict]:
         term = NeuralPotential(single.hidden, single.scale, single.envelope_radius, members=n)
         model = Model(est.model_.known, term)
         rows.append(
-            {"seed": seed, "model": f"ensemble {n}", **evaluate(model, np.concatenate(blocks[:n]))}
+            {
+                "seed": seed,
+                "model": f"ensemble {n}",
+                "wall_s": round(sum(r["wall_s"] for r in rows[:n]), 1),
+                **evaluate(model, np.concatenate(blocks[:n])),
+            }
         )
     return rows
 
@@ -89,12 +102,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="0-7", help="campaign seeds: 0-7 or 2,7")
     parser.add_argument("--members", type=int, default=3)
+    parser.add_argument("--max-iter", type=int, default=None, help="LM iterations per network")
     parser.add_argument("--json", action="store_true", help="one JSON object per row")
     args = parser.parse_args()
     start = time.perf_counter()
     every = []
     for seed in _seeds(args.seeds):
-        rows = one_draw(seed, args.members)
+        rows = one_draw(seed, args.members, args.max_iter)
         every += rows
         for r in rows:
             if args.json:
@@ -103,14 +117,14 @@ def main() -> None:
                 print(
                     f"seed {seed} {r['model']:<16} r1.2 {r['r1.2']:.3f} h30m {r['h30m']:.3f} "
                     f"median {r['median_m']:5.2f} m  p90 {r['p90_m']:5.1f} m  "
-                    f"worst {r['worst_m']:6.1f} m  landed {r['landed']}",
+                    f"worst {r['worst_m']:6.1f} m  landed {r['landed']}  fit {r['wall_s']:.0f} s",
                     flush=True,
                 )
     if not args.json:
         print("\nacross seeds: median [min - max]")
         for name in dict.fromkeys(r["model"] for r in every):
             sel = [r for r in every if r["model"] == name]
-            for key in ("r1.2", "median_m"):
+            for key in ("r1.2", "median_m", "wall_s"):
                 v = np.array([r[key] for r in sel], float)
                 print(f"  {name:<16} {key:<8} {np.median(v):.3f} [{v.min():.3f} - {v.max():.3f}]")
         print(f"({time.perf_counter() - start:.0f} s)")
