@@ -3,11 +3,12 @@
 Truth: the Bennu shape with dense point-mass anomalies buried below the surface, background
 rescaled; by default in the frame of the shape's constant-density centroid, not recentred on
 the anomalies' centre of mass (the paper centres only its interior and residual-descent
-truths), so the residual keeps a degree-1 part. Every model is a residual on the constant-density shape prior: SH of several degrees,
-SH with Kaula regularisation (alpha scanned, chosen two ways: by the truth's field error on the
-1.05 R_B shell, the paper's protocol and the baseline at its strongest, and by the cost on held-out
-arcs, what a mission can do), and the network-best network. Field errors of the whole model
-against the perturbing potential (1 = no correction) on shells close to the surface.
+truths), so the residual keeps a degree-1 part. Every model is a residual on the
+constant-density shape prior: SH of several degrees, SH with Kaula regularisation (alpha
+scanned, chosen two ways: by the truth's field error on the 1.05 R_B shell, the paper's
+protocol and the baseline at its strongest, and by the cost on held-out arcs, what a mission
+can do), and the network-best network. Field errors of the whole model against the perturbing
+potential (1 = no correction) on shells close to the surface.
 """
 
 from __future__ import annotations

@@ -221,6 +221,9 @@ class DescentExperiment(Experiment):
         misses = {k: v["misses_m"] for k, v in models.items()}
         totals = {k: v["total"] for k, v in models.items()}
         dashed = set()
+        if report["config"].get("prior") == "both":
+            # as with --compare-with: the rows without the prior dashed
+            dashed = {k for k in models if not k.startswith("shape")}
         if report["config"].get("compare_with"):
             other = _comparison(report["config"]["compare_with"])
             same = [r for r in other["repetitions"] if r["seed"] == first["seed"]]
