@@ -9,7 +9,14 @@ from ..core.fields import shell_points
 from ..core.geometry import points_inside
 from .catalogue import Body
 
-__all__ = ["evaluation_sets", "set_label", "bin_label", "radial_bins", "equatorial_grid"]
+__all__ = [
+    "evaluation_sets",
+    "set_label",
+    "bin_label",
+    "radial_bins",
+    "equatorial_grid",
+    "exterior_points",
+]
 
 
 def evaluation_sets(
@@ -66,3 +73,27 @@ def equatorial_grid(body: Body, extent_rb: float, n: int) -> tuple[np.ndarray, n
     x, y = np.meshgrid(axis, axis)
     points = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
     return points, points_inside(np.asarray(body.mesh.triangles), points)
+
+
+def exterior_points(body: Body, max_radius: float, n: int = 1500, *, seed: int = 0) -> np.ndarray:
+    """``n`` seeded points (n, 3) outside the body's mesh, canonical: random directions at radii
+    uniform in (0, ``max_radius``] [canonical], so the space between the surface and the
+    tracked orbits is covered down to the concavities (points inside the mesh are drawn
+    again)."""
+    if not max_radius > 0 or n < 1:
+        raise ValueError("exterior points need a positive radius and a positive count")
+    rng = np.random.default_rng(seed)
+    triangles = np.asarray(body.mesh.triangles)
+    kept: list[np.ndarray] = []
+    total, draw = 0, 0
+    while total < n:
+        batch = 2 * n
+        radii = rng.uniform(0.0, max_radius, batch)
+        pts = shell_points(1.0, batch, seed + 1 + draw) * radii[:, None]
+        pts = pts[~points_inside(triangles, pts)]
+        kept.append(pts)
+        total += len(pts)
+        draw += 1
+        if draw > 50:
+            raise ValueError(f"could not place {n} points outside the body")
+    return np.concatenate(kept)[:n]

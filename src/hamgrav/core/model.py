@@ -36,6 +36,8 @@ __all__ = [
     "compiled_integrators",
     "field_function",
     "evaluate_field",
+    "laplacian_function",
+    "evaluate_laplacian",
     "hamiltonian_values",
     "cache_info",
 ]
@@ -244,6 +246,37 @@ def evaluate_field(model: Model, params: np.ndarray, points: np.ndarray, which: 
         out = f(points, pars=np.ascontiguousarray(np.broadcast_to(theta, (n_learn, n))))
     else:
         out = f(points)
+    return out[0], out[1:].T
+
+
+def laplacian_function(model: Model):
+    """Compiled (cached) Laplacian of the learnable term and its gradient with respect to the
+    learnable parameters, at body-fixed points: a heyoka ``cfunc`` with outputs
+    (lap N, d lap N / d theta_0, ..., d lap N / d theta_{n-1}), inputs (x, y, z) and the
+    learnable parameters as its ``pars``. A perturbing potential is harmonic outside the body
+    (lap V = 0 there), which a network, unlike an SH expansion, does not satisfy by
+    construction."""
+
+    def build():
+        if model.learnable is None or model.n_learn == 0:
+            raise ValueError("the model has no learnable parameters")
+        v = model.learnable.potential(0)
+        lap = hy.sum([hy.diff(hy.diff(v, q), q) for q in POSITION])
+        grad = hy.diff_tensors([lap], diff_args=hy.diff_args.params, diff_order=1).jacobian
+        outputs = [lap, *(grad[0, j] for j in range(model.n_learn))]
+        return hy.cfunc(outputs, vars=list(POSITION), compact_mode=True)
+
+    return _cached((model.key(), "laplacian"), build)
+
+
+def evaluate_laplacian(model: Model, params: np.ndarray, points: np.ndarray):
+    """The Laplacian of the learnable term (k,) [canonical] at ``points`` (k, 3) and its
+    gradient (k, n_learn) with respect to the learnable parameters ``params[:n_learn]``."""
+    f = laplacian_function(model)
+    points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)).T)
+    theta = np.asarray(params, float)[: model.n_learn, None]
+    pars = np.ascontiguousarray(np.broadcast_to(theta, (model.n_learn, points.shape[1])))
+    out = f(points, pars=pars)
     return out[0], out[1:].T
 
 

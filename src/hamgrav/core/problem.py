@@ -11,8 +11,11 @@ are not estimated are data (``trajectory_values``). Residuals r = y - x(t; y_0, 
 canonical states (optionally divided by per-component sigmas), cost J = r.r / 2, design
 matrix A = dr/dtheta = -Phi, gradient A^T r, normal matrix A^T A.
 
-Solvers use an :class:`ArcProblem` only through ``cost``, ``gradient`` and
-``normal_equations``.
+Solvers use an :class:`ArcProblem` only through ``cost``, ``objective``, ``gradient`` and
+``normal_equations``. An optional ``regulariser`` (residual rows on the learnable parameters,
+e.g. :class:`hamgrav.fit.harmonic.HarmonicPenalty`) is part of the training objective:
+``objective`` and ``normal_equations`` include it, ``cost`` (validation, diagnostics) never
+does.
 """
 
 from __future__ import annotations
@@ -52,6 +55,8 @@ class ArcProblem:
         tol: integrator tolerance.
         threads: worker threads (default: the number of CPUs).
         max_steps: Taylor steps allowed per batch of arcs before a trial is declared stiff.
+        regulariser: optional object with ``terms(theta) -> (rows (k,), jacobian (k,
+            n_learn))`` whose 0.5 rows.rows is added to the training objective.
     """
 
     def __init__(
@@ -65,8 +70,10 @@ class ArcProblem:
         tol: float = DEFAULT_FIT_TOLERANCE,
         threads: int | None = None,
         max_steps: int = 500,
+        regulariser=None,
     ):
         self.model = model
+        self.regulariser = regulariser
         self.arcs = arcs
         self.tol = tol
         self.n_trajectories = len(arcs.trajectory_kind)
@@ -192,8 +199,17 @@ class ArcProblem:
             a *= self.weights[:, None]
         return r.reshape(-1), a.reshape(-1, self.n_params)
 
-    def normal_equations(self, theta, arc_indices=None, chunk: int = 64):
-        """(J, A^T r, A^T A), accumulated over chunks of arcs without materialising A."""
+    def objective(self, theta, arc_indices=None) -> float:
+        """The training objective: :meth:`cost` plus the regulariser's 0.5 rows.rows."""
+        cost = self.cost(theta, arc_indices)
+        if self.regulariser is None:
+            return cost
+        rows, _ = self.regulariser.terms(np.asarray(theta, float)[: self.model.n_learn])
+        return cost + 0.5 * float(rows @ rows)
+
+    def normal_equations(self, theta, arc_indices=None, chunk: int = 64, *, regularised=True):
+        """(J, A^T r, A^T A), accumulated over chunks of arcs without materialising A; with
+        ``regularised`` (and a regulariser) the objective's: its rows are appended to r and A."""
         idx = self._indices(arc_indices)
         n = self.n_params
         cost, atr, ata = 0.0, np.zeros(n), np.zeros((n, n))
@@ -202,6 +218,12 @@ class ArcProblem:
             cost += 0.5 * float(r @ r)
             atr += a.T @ r
             ata += a.T @ a
+        if regularised and self.regulariser is not None:
+            k = self.model.n_learn
+            rows, jac = self.regulariser.terms(np.asarray(theta, float)[:k])
+            cost += 0.5 * float(rows @ rows)
+            atr[:k] += jac.T @ rows
+            ata[:k, :k] += jac.T @ jac
         return cost, atr, ata
 
     def gradient(self, theta, arc_indices=None, chunk: int = 64):

@@ -91,6 +91,13 @@ class DeepExperimentConfig(CampaignConfig):
         "(must be among --sh-degrees).",
     )
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    harmonic: float = option(
+        1e-5,
+        "Weight of the network's harmonic penalty (its Laplacian, scaled by (r / R_w)^5, at "
+        "1500 points outside the body out to the farthest sample; 0: off). Measured on one "
+        "67P draw: the 300 m set inside R_B at 0.48 against 1.38 without, the exterior error "
+        "0.086 against 0.131.",
+    )
     lm_iterations: int = option(30, "LM iteration cap of each network member at the first stage.")
     warm_iterations: int = option(
         NETWORK_WARM_SOLVER.max_iter,
@@ -122,6 +129,8 @@ class DeepExperimentConfig(CampaignConfig):
             raise InputError(
                 f"map_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"
             )
+        if self.harmonic < 0:
+            raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
         if not self.hidden or any(h < 1 for h in self.hidden):
             raise InputError("hidden must be one or more positive layer sizes, e.g. 24,24")
         if self.lm_iterations < 1 or self.warm_iterations < 1:
@@ -261,7 +270,7 @@ class DeepExperiment(Experiment):
         info = arcs.trajectory_info
         groups = arrival_stages(info["radius_rb"], info["inclination_deg"], config.stages)
         arriving = [arcs.arcs_of(g) for g in groups]
-        best = preset("network-best", hidden=config.hidden)
+        best = preset("network-best", hidden=config.hidden, harmonic=config.harmonic or None)
         best["solver"] = replace(best["solver"], max_iter=config.lm_iterations)
         best["warm_solver"] = replace(best["warm_solver"], max_iter=config.warm_iterations)
         rows = {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}

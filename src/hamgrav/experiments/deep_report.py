@@ -80,7 +80,14 @@ def deep_readme(report: dict) -> list[str]:
         + "; ".join(",".join(map(str, s["orbits"])) for s in first["stages"])
         + "); every model is fitted on the identical arcs, each stage warm-started from the "
         f"previous one: SH of degree {', '.join(m[2:] for m in sh)} (LM) and `{net}` (the "
-        f"network-best configuration, hidden layers {','.join(map(str, cfg['hidden']))}). "
+        f"network-best configuration, hidden layers {','.join(map(str, cfg['hidden']))}"
+        + (
+            f", with the harmonic penalty of weight {cfg['harmonic']:g}: its Laplacian, scaled "
+            "by (r / R_w)^5, pushed to zero at 1500 points outside the body"
+            if cfg.get("harmonic")
+            else ""
+        )
+        + "). "
         "Errors are relative errors of the perturbing potential (1 = no correction): "
         f"`exterior` is the mean over the shells {shells} R_B, `deep` the "
         f"{cfg['altitude_m']:g} m surface-following set inside the Brillouin sphere "

@@ -186,7 +186,8 @@ def information_matrix(problem_or_model, theta, arcs: Arcs | None = None, arc_in
     Phi^T Phi. Give an :class:`ArcProblem` (its arcs, weights and SRP settings are used) or a
     :class:`Model` and ``arcs``. The arcs' states only anchor the propagations."""
     problem = _problem(problem_or_model, arcs)
-    return problem.normal_equations(np.asarray(theta, dtype=float), arc_indices)[2]
+    theta = np.asarray(theta, dtype=float)
+    return problem.normal_equations(theta, arc_indices, regularised=False)[2]
 
 
 def _information_of(problem: ArcProblem, theta, arc_indices) -> np.ndarray:

@@ -57,7 +57,7 @@ def constrained_parameters(
     docstring); 0 without parameters."""
     if not problem.n_params:
         return 0
-    _, _, ata = problem.normal_equations(params, train)
+    _, _, ata = problem.normal_equations(params, train, regularised=False)
     eig = np.linalg.eigvalsh(ata)
     top = float(eig.max())
     return int(np.sum(eig > 1e-12 * top)) if top > 0 else 0

@@ -19,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..bodies.catalogue import Body, load_body
+from ..bodies.evaluation import exterior_points
 from ..bodies.shape_prior import DEFAULT_PRIOR_MASCONS, centred_shape_prior
 from ..core.arcs import Arcs
 from ..core.model import Model, evaluate_field
@@ -30,6 +31,7 @@ from .adam import Adam
 from .base import Outcome, Solver, SolveResult
 from .diagnostics import constrained_parameters, diagnose
 from .fitted import FittedModel
+from .harmonic import DEFAULT_COLLOCATION_POINTS, HarmonicPenalty
 from .kaula import scan_kaula
 from .lm import LevenbergMarquardt
 
@@ -162,6 +164,9 @@ class GravityEstimator:
         members: networks in the ensemble (term "network"): each member is fitted on its own
             from its seeded initialisation (seed, seed + 1, ...; warm starts from its block
             of ``init``) and the learned potential is their mean.
+        harmonic: weight w of the harmonic penalty of a network fit by LM (None: off):
+            0.5 w sum (lap N)^2 over 1500 seeded points outside the body out to the farthest
+            tracked sample, canonical (see :mod:`hamgrav.fit.harmonic`).
         body: the body in the arcs' frame (default: loaded from the catalogue by name).
         mapper: map function for independent work (Kaula scan); builtin ``map`` by default.
     """
@@ -189,6 +194,7 @@ class GravityEstimator:
         batch_size: int = 24,
         seed: int = 0,
         members: int = 1,
+        harmonic: float | None = None,
         body: Body | None = None,
         mapper: Callable = map,
     ):
@@ -212,6 +218,7 @@ class GravityEstimator:
         self.batch_size = batch_size
         self.seed = seed
         self.members = members
+        self.harmonic = harmonic
         self.body = body
         self.mapper = mapper
 
@@ -410,6 +417,8 @@ class GravityEstimator:
         }
         if members is not None:
             solver_info["members"] = members
+        if problem.regulariser is not None:
+            solver_info["harmonic"] = problem.regulariser.describe()
         if kaula_scores is not None:
             solver_info["kaula_scan"] = kaula_scores
             solver_info["kaula_alpha"] = result.solver["kaula_alpha"]
@@ -434,7 +443,20 @@ class GravityEstimator:
             estimate_trajectory_params=self.estimate_trajectory_params,
             trajectory_values=self.trajectory_values,
             sigmas=noise_sigmas(arcs) if self.weighted else None,
+            regulariser=self._harmonic_penalty(model, arcs),
         )
+
+    def _harmonic_penalty(self, model: Model, arcs: Arcs) -> HarmonicPenalty | None:
+        """The harmonic penalty of a network fit (None without ``harmonic`` or for SH):
+        collocation points outside the body out to the farthest tracked sample, seeded."""
+        if not self.harmonic or not isinstance(model.learnable, NeuralPotential):
+            return None
+        if self.solver_name == "adam":
+            raise InputError("harmonic (the Laplacian penalty) needs the LM solver, not Adam")
+        body = self.body if self.body is not None else body_for_arcs(arcs)
+        reach = float(np.max(np.linalg.norm(arcs.states[..., :3], axis=-1)))
+        points = exterior_points(body, reach, DEFAULT_COLLOCATION_POINTS, seed=self.seed)
+        return HarmonicPenalty(model, points, float(self.harmonic))
 
     def _fit_members(self, problem, init, solver, train, validation, callback, checkpoint, resume):
         """Fit each member of the ensemble on its own, from its block of ``init``; returns the

@@ -98,7 +98,7 @@ class LevenbergMarquardt(Solver):
             step = _solve_spd(lhs, -(atr + kaula * theta))
             trial = theta + step
             try:
-                trial_cost = reg_cost(problem.cost(trial, train), trial)
+                trial_cost = reg_cost(problem.objective(trial, train), trial)
                 accepted = trial_cost < cost
                 if accepted:
                     _, trial_atr, trial_ata = problem.normal_equations(trial, train)
