@@ -299,3 +299,56 @@ def test_deep_tiny(tmp_path):
         assert f"- `{name}`: " in readme
     again = runner.invoke(app, ["experiment", "readme", str(out)])
     assert again.exit_code == 0 and (out / "README.md").read_text() == readme
+
+
+def test_swarm_tiny(tmp_path):
+    out = tmp_path / "swarm"
+    args = [
+        "experiment", "swarm", "--body", "synthetic", "--n-mascons", "60", "--particles", "3",
+        "--arcs", "5", "--samples-per-arc", "10", "--window-s", "2400", "--sh-degrees", "2,3",
+        "--gravity-only-degree", "2", "--hidden", "4", "--lm-iterations", "3", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    rep = data["repetitions"][0]
+    assert rep["n_arcs"] == 5 and rep["n_particles"] == 3
+    assert rep["draws"]["total"] == 3 + rep["draws"]["rejected"]
+    true = rep["area_to_mass"]["true"]
+    assert len(true) == 3 and all(0.005 <= v <= 0.075 for v in true)
+    assert set(rep["area_to_mass"]) == {"true", "sh2", "sh3", "network"}
+    assert set(rep["area_to_mass_median_error"]) == {"sh2", "sh3", "network"}
+    # the joint SH fits moved every A/m from its start at zero
+    assert all(v != 0.0 for v in rep["area_to_mass"]["sh2"])
+    assert set(rep["field_error"]) == {"joint", "gravity-only"}
+    assert set(rep["field_error"]["joint"]) == {"sh2", "sh3", "network"}
+    assert set(rep["field_error"]["gravity-only"]) == {"sh2", "network"}
+    assert set(rep["field_error"]["joint"]["sh2"]) == {"r1.05", "r1.2", "h30m"}
+    # joint fits carry one A/m per particle, gravity-only fits none
+    fits = rep["fits"]
+    assert (
+        fits["joint"]["sh2"]["n_params"] == 5 + 3 and fits["gravity-only"]["sh2"]["n_params"] == 5
+    )
+    assert fits["joint"]["network"]["n_params"] == fits["gravity-only"]["network"]["n_params"] + 3
+    assert set(rep["wall_s_stages"]) == {
+        "simulation", "joint/sh2", "joint/sh3", "joint/network", "gravity-only/sh2",
+        "gravity-only/network",
+    }  # fmt: skip
+    agg = data["aggregate"]
+    assert agg["field_error"]["gravity-only"]["sh2"]["h30m"]["median"] == pytest.approx(
+        rep["field_error"]["gravity-only"]["sh2"]["h30m"]
+    )
+    assert agg["area_to_mass_median_error"]["sh2"]["n"] == 1
+    readme = (out / "README.md").read_text()
+    assert "hamgrav experiment swarm --body synthetic" in readme
+    assert "| A/m median relative error, network joint | 3.5 % |" in readme
+    assert "| gravity-only | sh2 |" in readme
+    assert (out / "swarm.png").stat().st_size > 1000
+
+
+def test_swarm_option_errors(tmp_path):
+    args = ["experiment", "swarm", "--window-s", "100", "-o", str(tmp_path / "x")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    assert "raise window_s to at least" in result.output
+    assert not (tmp_path / "x").exists()

@@ -107,6 +107,11 @@ class Experiment(ABC):
         repetition's artefacts."""
         return {}
 
+    def aggregate(self, repetitions: list[dict]) -> dict:
+        """results.json's ``aggregate``: by default :func:`aggregate` over
+        :attr:`aggregate_keys` (experiments with other result shapes override this)."""
+        return aggregate(repetitions, self.aggregate_keys)
+
 
 _REGISTRY: dict[str, Experiment] = {}
 
@@ -118,7 +123,7 @@ def register(experiment: Experiment) -> Experiment:
 
 
 def _register_all() -> None:
-    from . import anomalies, continual, deep, descent, interiors, solvers  # noqa: F401 (registers)
+    from . import anomalies, continual, deep, descent, interiors, solvers, swarm  # noqa: F401
 
 
 def get_experiment(name: str) -> Experiment:
@@ -333,7 +338,7 @@ def run_experiment(
         "dispatch": mode,
         "wall_s": round(time.perf_counter() - start, 1),
         "repetitions": repetitions,
-        "aggregate": aggregate(repetitions, experiment.aggregate_keys),
+        "aggregate": experiment.aggregate(repetitions),
     }
     if output is not None:
         write_report(experiment, report, ordered[0].artefacts, Path(output))
