@@ -43,6 +43,7 @@ __all__ = [
     "run_experiment",
     "rerender_readme",
     "aggregate",
+    "summarise",
     "dask_client",
     "format_range",
 ]
@@ -240,13 +241,14 @@ def aggregate(repetitions: list[dict], keys: tuple[str, ...]) -> dict:
                         continue
                     table.setdefault(model, {}).setdefault(stat, []).append(value)
         out[key] = {
-            model: {stat: _summary(values) for stat, values in stats.items()}
+            model: {stat: summarise(values) for stat, values in stats.items()}
             for model, stats in table.items()
         }
     return out
 
 
-def _summary(values: list) -> dict:
+def summarise(values: list) -> dict:
+    """Median, min, max and count of the finite numbers among ``values`` (None left out)."""
     present = [float(v) for v in values if v is not None and math.isfinite(v)]
     if not present:
         return {"median": None, "min": None, "max": None, "n": 0}

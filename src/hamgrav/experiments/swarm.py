@@ -37,9 +37,9 @@ from .runner import (
     Experiment,
     RunContext,
     RunOutput,
-    _summary,
     format_range,
     register,
+    summarise,
 )
 
 __all__ = ["SwarmExperimentConfig", "SwarmExperiment", "PAPER_SWARM", "swarm_readme"]
@@ -249,7 +249,7 @@ def _nested_summary(values: list):
     if isinstance(values[0], dict):
         keys = [k for k in values[0] if all(isinstance(v, dict) and k in v for v in values)]
         return {k: _nested_summary([v[k] for v in values]) for k in keys}
-    return _summary([v if isinstance(v, int | float) else None for v in values])
+    return summarise([v if isinstance(v, int | float) else None for v in values])
 
 
 def swarm_figure(result: dict, artefacts: dict) -> Figure:
@@ -309,7 +309,7 @@ def swarm_readme(report: dict) -> list[str]:
     fe = [r["field_error"] for r in reps]
 
     def row(name, paper, values, fmt, target, test, tested=None):
-        s = _summary(values)
+        s = summarise(values)
         med = "-" if s["median"] is None else fmt.format(s["median"])
         rng = "-" if s["median"] is None else f"{fmt.format(s['min'])}-{fmt.format(s['max'])}"
         count = _count(values if tested is None else tested, test)
@@ -325,7 +325,7 @@ def swarm_readme(report: dict) -> list[str]:
         "noise 5 cm per position component (the paper's model). A/m of the particles "
         f"log-uniform (stratified) in {cfg['area_to_mass_m2_kg'][0]:g}-"
         f"{cfg['area_to_mass_m2_kg'][1]:g} m^2/kg (span "
-        + format_range(_summary([r["area_to_mass_span"] for r in reps]), "{:.1f}")
+        + format_range(summarise([r["area_to_mass_span"] for r in reps]), "{:.1f}")
         + "x). Field errors: 1 = no correction.",
         "",
         "| quantity | paper | ours (median) | min-max | n of N (target) |",
