@@ -168,7 +168,7 @@ def test_descent_with_both_blocks_tiny(tmp_path):
     args = [
         "experiment", "descent", *TINY_CAMPAIGN, "--descents", "2", "--sh-degrees", "2",
         "--hidden", "4", "--lm-iterations", "2", "--adam-steps", "2", "--prior", "both",
-        "-o", str(out),
+        "--harmonic", "1e-3", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -176,8 +176,12 @@ def test_descent_with_both_blocks_tiny(tmp_path):
     tracking_alone = {"point-mass", "sh2", "network", "network-best"}
     assert set(rep["models"]) == tracking_alone | {"shape", "shape+sh2", "shape+network"}
     assert rep["fits"]["shape+network"]["members"]
+    # the harmonic penalty reaches the network-best rows, and only them
+    for row in ("network-best", "shape+network"):
+        assert rep["fits"][row]["harmonic"] == {"weight": 1e-3, "collocation_points": 1500}
+    assert "harmonic" not in rep["fits"]["network"] and "harmonic" not in rep["fits"]["sh2"]
     readme = (out / "README.md").read_text()
-    assert "the rows named `shape...`" in readme
+    assert "the rows named `shape...`" in readme and "harmonic penalty of weight 0.001" in readme
     # both blocks carry the paper's numbers, each its own
     assert "| point-mass |" in readme and "| shape+sh2 |" in readme
 

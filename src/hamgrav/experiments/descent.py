@@ -73,6 +73,11 @@ class DescentExperimentConfig(CampaignConfig):
     adam_steps: int = option(1500, "Adam steps of the 'network' row (the paper's protocol).")
     learning_rate: float = option(1e-2, "Adam peak learning rate.")
     lm_iterations: int = option(30, "LM iteration cap of the 'network-best' row.")
+    harmonic: float = option(
+        0.0,
+        "Weight of the harmonic penalty of the 'network-best' row (its Laplacian, scaled by "
+        "(r / R_w)^5, at 1500 points outside the body; 0: off).",
+    )
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
     prior: str = option(
         "none",
@@ -91,6 +96,8 @@ class DescentExperimentConfig(CampaignConfig):
 
     def check(self) -> None:
         super().check()
+        if self.harmonic < 0:
+            raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
         if self.prior not in ("none", "shape", "both"):
             raise InputError(f"prior must be 'none', 'shape' or 'both', got {self.prior!r}")
         if self.compare_with:
@@ -131,7 +138,7 @@ class DescentExperiment(Experiment):
     def run(self, config: DescentExperimentConfig, ctx: RunContext) -> RunOutput:
         seed, say = ctx.seed, ctx.say
         truth, arcs = simulate(config, ctx)
-        best = preset("network-best", hidden=config.hidden)
+        best = preset("network-best", hidden=config.hidden, harmonic=config.harmonic or None)
         best["solver"] = replace(best["solver"], max_iter=config.lm_iterations)
         rows = {}
         if config.prior in ("none", "both"):

@@ -76,7 +76,13 @@ def descent_readme(report: dict, paper: dict) -> list[str]:
         f"its seeded initialisation by {best.get('max_iter', '?')} Levenberg-Marquardt "
         "iterations with the damping",
         f"scale floored at {best.get('damping_floor', float('nan')):g} of its largest entry, "
-        "each returning its best-validation iterate.",
+        "each returning its best-validation iterate"
+        + (
+            f", with the harmonic penalty of weight {cfg['harmonic']:g} (the network's "
+            "Laplacian, scaled by (r / R_w)^5, pushed to zero at 1500 points outside the body)."
+            if cfg.get("harmonic")
+            else "."
+        ),
         "Relative field error (1 = no correction) on shells",
         f"(r, in R_B) and on the {cfg['altitude_m']:g} m surface-following set:",
         "",
