@@ -13,15 +13,15 @@ potential (1 = no correction) on shells close to the surface.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from matplotlib.figure import Figure
 
 from ..core.fields import perturbing_potential
 from ..core.model import evaluate_field
-from ..fit.estimator import preset, truth_shell_metric
-from .common import CampaignConfig, errors_of, fit, sets_for, simulate
+from ..fit.estimator import truth_shell_metric
+from .common import CampaignConfig, errors_of, fit, network_best, sets_for, simulate
 from .config import option
 from .runner import Experiment, RunContext, RunOutput, format_range, register
 
@@ -76,8 +76,7 @@ class AnomaliesExperiment(Experiment):
 
     def run(self, config: AnomaliesExperimentConfig, ctx: RunContext) -> RunOutput:
         truth, arcs = simulate(config, ctx)
-        best = preset("network-best", hidden=config.hidden, prior="shape")
-        best["solver"] = replace(best["solver"], max_iter=config.lm_iterations)
+        best = network_best(config.hidden, config.lm_iterations, prior="shape")
         rows = {"shape": {"term": "none", "prior": "shape"}}
         for d in config.sh_degrees:
             rows[f"shape+sh{d}"] = {"term": "sh", "degree": d, "prior": "shape"}

@@ -4,7 +4,7 @@ fits through the estimator, evaluation sets and plain-data artefacts for figures
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -13,13 +13,21 @@ from ..bodies.interiors import INTERIORS, TRUTH_FRAMES, Truth
 from ..core.arcs import Arcs
 from ..core.fields import field_errors
 from ..errors import InputError
-from ..fit.estimator import GravityEstimator
+from ..fit.estimator import GravityEstimator, preset
 from ..sim.campaign import Campaign, run_campaign
 from ..sim.tracking import TrackingConfig, orbit_grid
 from .config import ExperimentConfig, option
 from .runner import RunContext
 
-__all__ = ["CampaignConfig", "simulate", "fit", "errors_of", "sets_for", "campaign_artefacts"]
+__all__ = [
+    "CampaignConfig",
+    "simulate",
+    "fit",
+    "network_best",
+    "errors_of",
+    "sets_for",
+    "campaign_artefacts",
+]
 
 
 @dataclass(frozen=True)
@@ -105,6 +113,14 @@ def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> Gra
     r = estimator.result_
     ctx.say(f"{name}: {r.outcome.value}, {r.iterations} iterations in {r.wall_s:.1f} s")
     return estimator
+
+
+def network_best(hidden, lm_iterations: int, *, harmonic: float = 0.0, **overrides) -> dict:
+    """The network-best estimator settings of an experiment row: ``hidden`` layers, each
+    member's LM iteration cap, the harmonic penalty's weight (0: off) and other overrides."""
+    best = preset("network-best", hidden=hidden, harmonic=harmonic or None, **overrides)
+    best["solver"] = replace(best["solver"], max_iter=lm_iterations)
+    return best
 
 
 def errors_of(model, params, truth: Truth, sets: dict) -> dict[str, float]:

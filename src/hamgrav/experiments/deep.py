@@ -32,8 +32,8 @@ from ..core.arcs import Arcs
 from ..core.fields import pointwise_field_errors
 from ..errors import InputError
 from ..fit.continual import fit_continual
-from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator, preset
-from .common import CampaignConfig, campaign_artefacts, errors_of, sets_for, simulate
+from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from .common import CampaignConfig, campaign_artefacts, errors_of, network_best, sets_for, simulate
 from .config import option
 from .deep_report import bins_figure, deep_readme, geometry_figure, maps_figure
 from .runner import Experiment, RunContext, RunOutput, register
@@ -268,8 +268,7 @@ class DeepExperiment(Experiment):
         info = arcs.trajectory_info
         groups = arrival_stages(info["radius_rb"], info["inclination_deg"], config.stages)
         arriving = [arcs.arcs_of(g) for g in groups]
-        best = preset("network-best", hidden=config.hidden, harmonic=config.harmonic or None)
-        best["solver"] = replace(best["solver"], max_iter=config.lm_iterations)
+        best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic)
         best["warm_solver"] = replace(best["warm_solver"], max_iter=config.warm_iterations)
         rows = {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}
         rows[NETWORK] = best

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +25,15 @@ from ..errors import InputError
 from ..fit.estimator import preset
 from ..report.figures import campaign_figure, miss_cdf_figure
 from ..sim.descent import DescentConfig, descend, miss_statistics, release_states
-from .common import CampaignConfig, campaign_artefacts, errors_of, fit, sets_for, simulate
+from .common import (
+    CampaignConfig,
+    campaign_artefacts,
+    errors_of,
+    fit,
+    network_best,
+    sets_for,
+    simulate,
+)
 from .config import option
 from .descent_report import descent_readme
 from .runner import Experiment, RunContext, RunOutput, register
@@ -138,8 +146,7 @@ class DescentExperiment(Experiment):
     def run(self, config: DescentExperimentConfig, ctx: RunContext) -> RunOutput:
         seed, say = ctx.seed, ctx.say
         truth, arcs = simulate(config, ctx)
-        best = preset("network-best", hidden=config.hidden, harmonic=config.harmonic or None)
-        best["solver"] = replace(best["solver"], max_iter=config.lm_iterations)
+        best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic)
         rows = {}
         if config.prior in ("none", "both"):
             rows["point-mass"] = {"term": "none"}

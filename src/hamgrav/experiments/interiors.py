@@ -20,8 +20,7 @@ from matplotlib.figure import Figure
 
 from ..bodies.interiors import INTERIORS
 from ..errors import InputError
-from ..fit.estimator import preset
-from .common import CampaignConfig, errors_of, fit, sets_for, simulate
+from .common import CampaignConfig, errors_of, fit, network_best, sets_for, simulate
 from .config import option
 from .runner import Experiment, RunContext, RunOutput, format_range, register
 
@@ -70,8 +69,7 @@ class InteriorsExperiment(Experiment):
     }
 
     def run(self, config: InteriorsExperimentConfig, ctx: RunContext) -> RunOutput:
-        best = preset("network-best", hidden=config.hidden)
-        best["solver"] = replace(best["solver"], max_iter=config.lm_iterations)
+        best = network_best(config.hidden, config.lm_iterations)
         rows = {
             "shape": {"term": "none", "prior": "shape"},
             "network-scratch": best,

@@ -21,7 +21,7 @@ of every stage.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -29,9 +29,8 @@ from matplotlib.figure import Figure
 from ..bodies.catalogue import load_body
 from ..bodies.interiors import INTERIORS, build_truth
 from ..errors import InputError
-from ..fit.estimator import preset
 from ..sim.particles import SwarmConfig, simulate_swarm, solar_radiation_pressure
-from .common import errors_of, fit, sets_for
+from .common import errors_of, fit, network_best, sets_for
 from .config import ExperimentConfig, option
 from .runner import (
     Experiment,
@@ -157,8 +156,7 @@ class SwarmExperiment(Experiment):
         )
         srp = solar_radiation_pressure(truth.body.units, swarm)
         joint = {"per_trajectory": (srp,), "estimate_trajectory_params": True}
-        best = preset("network-best", hidden=config.hidden, members=1)
-        best["solver"] = replace(best["solver"], max_iter=config.lm_iterations)
+        best = network_best(config.hidden, config.lm_iterations, members=1)
         best["warm_solver"] = None
         rows = {
             ("joint", f"sh{d}"): {"term": "sh", "degree": d, **joint} for d in config.sh_degrees
