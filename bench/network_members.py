@@ -9,11 +9,13 @@ lowest validation cost (single networks), the r1.2 and h30m field errors and the
 is the measurement behind network-best being an ensemble rather than the best-validation
 restart.
 
-    python bench/network_members.py --seeds 0-7 [--members 3] [--max-iter 30] [--json]
+    python bench/network_members.py --seeds 0-7 [--members 3] [--max-iter 30]
+                                    [--harmonic W] [--json]
 
 ``--max-iter`` caps each single fit's LM iterations (network-best's own cap by default): the
 measurement behind the cost-quality trade of the ensemble (fit time scales with members x
-iterations).
+iterations). ``--harmonic`` sets the weight of the harmonic penalty of every single fit
+(network-best's own by default; 0 turns it off).
 """
 
 from __future__ import annotations
@@ -41,7 +43,9 @@ def _seeds(text: str) -> list[int]:
     return [int(v) for v in text.split(",")]
 
 
-def one_draw(seed: int, members: int, max_iter: int | None = None) -> list[dict]:
+def one_draw(
+    seed: int, members: int, max_iter: int | None = None, harmonic: float | None = None
+) -> list[dict]:
     """Rows (plain data) for one campaign draw."""
     config = DescentExperimentConfig()
     truth, arcs = simulate(config, RunContext(seed=seed))
@@ -64,13 +68,18 @@ def one_draw(seed: int, members: int, max_iter: int | None = None) -> list[dict]
         }
 
     settings = preset("network-best", members=1)
+    if harmonic is not None:
+        settings["harmonic"] = harmonic or None
     if max_iter is not None:
         settings["solver"] = replace(settings["solver"], max_iter=max_iter)
     rows, blocks = [], []
     for k in range(members):
         est = GravityEstimator(body=truth.body, seed=seed, **settings)
         model, _ = est.build_model(arcs)
-        est.fit(arcs, init=est.initial_params(model, arcs, seed=seed + k))
+        # the solver is passed explicitly: an ``init`` alone would select the warm-start
+        # solver (10 iterations) instead of network-best's own
+        init = est.initial_params(model, arcs, seed=seed + k)
+        est.fit(arcs, init=init, solver=settings["solver"])
         blocks.append(est.params_)
         rows.append(
             {
@@ -103,12 +112,15 @@ def main() -> None:
     parser.add_argument("--seeds", default="0-7", help="campaign seeds: 0-7 or 2,7")
     parser.add_argument("--members", type=int, default=3)
     parser.add_argument("--max-iter", type=int, default=None, help="LM iterations per network")
+    parser.add_argument(
+        "--harmonic", type=float, default=None, help="harmonic penalty weight (0: off)"
+    )
     parser.add_argument("--json", action="store_true", help="one JSON object per row")
     args = parser.parse_args()
     start = time.perf_counter()
     every = []
     for seed in _seeds(args.seeds):
-        rows = one_draw(seed, args.members, args.max_iter)
+        rows = one_draw(seed, args.members, args.max_iter, args.harmonic)
         every += rows
         for r in rows:
             if args.json:
