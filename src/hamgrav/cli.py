@@ -246,6 +246,8 @@ def fit(
         body_obj = body_for_arcs(arcs)
         if solver is not None:  # a solver by name replaces the configuration's
             settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
+            if solver == "adam":  # the harmonic penalty is an LM objective term
+                settings["harmonic"] = None
         if term == "network":
             settings = {**settings, "hidden": hidden_sizes}
         settings |= {"adam_steps": steps, "learning_rate": learning_rate}

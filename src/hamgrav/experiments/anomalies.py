@@ -21,7 +21,15 @@ from matplotlib.figure import Figure
 from ..core.fields import perturbing_potential
 from ..core.model import evaluate_field
 from ..fit.estimator import truth_shell_metric
-from .common import CampaignConfig, errors_of, fit, network_best, sets_for, simulate
+from .common import (
+    CampaignConfig,
+    errors_of,
+    fit,
+    harmonic_option,
+    network_best,
+    sets_for,
+    simulate,
+)
 from .config import option
 from .runner import Experiment, RunContext, RunOutput, format_range, register
 
@@ -56,6 +64,7 @@ class AnomaliesExperimentConfig(CampaignConfig):
     sh_degrees: tuple[int, ...] = option((4, 8, 12, 16), "SH residual degrees (LM).")
     kaula_degrees: tuple[int, ...] = option((8, 16), "SH degrees also fitted with Kaula scans.")
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    harmonic: float = harmonic_option("shape+network")
     lm_iterations: int = option(30, "LM iteration cap of each network member.")
     shells_rb: tuple[float, ...] = option((1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].")
 
@@ -76,7 +85,9 @@ class AnomaliesExperiment(Experiment):
 
     def run(self, config: AnomaliesExperimentConfig, ctx: RunContext) -> RunOutput:
         truth, arcs = simulate(config, ctx)
-        best = network_best(config.hidden, config.lm_iterations, prior="shape")
+        best = network_best(
+            config.hidden, config.lm_iterations, harmonic=config.harmonic, prior="shape"
+        )
         rows = {"shape": {"term": "none", "prior": "shape"}}
         for d in config.sh_degrees:
             rows[f"shape+sh{d}"] = {"term": "sh", "degree": d, "prior": "shape"}

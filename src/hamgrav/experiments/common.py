@@ -13,7 +13,7 @@ from ..bodies.interiors import INTERIORS, TRUTH_FRAMES, Truth
 from ..core.arcs import Arcs
 from ..core.fields import field_errors
 from ..errors import InputError
-from ..fit.estimator import GravityEstimator, preset
+from ..fit.estimator import NETWORK_BEST_HARMONIC, GravityEstimator, preset
 from ..sim.campaign import Campaign, run_campaign
 from ..sim.tracking import TrackingConfig, orbit_grid
 from .config import ExperimentConfig, option
@@ -24,6 +24,7 @@ __all__ = [
     "simulate",
     "fit",
     "network_best",
+    "harmonic_option",
     "errors_of",
     "sets_for",
     "campaign_artefacts",
@@ -66,6 +67,9 @@ class CampaignConfig(ExperimentConfig):
         for name in ("radius_rb", "inclination_deg"):
             if len(getattr(self, name)) != 2:
                 raise InputError(f"{name} must be a range of two numbers (low, high)")
+        # the option of harmonic_option(), in the experiments that have a network-best row
+        if getattr(self, "harmonic", 0.0) < 0:
+            raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
 
     def campaign(self, seed: int) -> Campaign:
         """The campaign this config describes, seeded."""
@@ -115,12 +119,23 @@ def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> Gra
     return estimator
 
 
-def network_best(hidden, lm_iterations: int, *, harmonic: float = 0.0, **overrides) -> dict:
+def network_best(hidden, lm_iterations: int, *, harmonic: float, **overrides) -> dict:
     """The network-best estimator settings of an experiment row: ``hidden`` layers, each
     member's LM iteration cap, the harmonic penalty's weight (0: off) and other overrides."""
     best = preset("network-best", hidden=hidden, harmonic=harmonic or None, **overrides)
     best["solver"] = replace(best["solver"], max_iter=lm_iterations)
     return best
+
+
+def harmonic_option(row: str = "network-best"):
+    """The ``harmonic`` option of an experiment config: the weight of the harmonic penalty
+    of its ``row`` (network-best's own by default)."""
+    return option(
+        NETWORK_BEST_HARMONIC,
+        f"Weight of the harmonic penalty of the '{row}' row (its Laplacian, scaled by "
+        "(r / R_w)^5, pushed to zero at 1500 points outside the body out to the farthest "
+        "sample; 0: off).",
+    )
 
 
 def errors_of(model, params, truth: Truth, sets: dict) -> dict[str, float]:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..fit.continual import fit_continual
 from ..fit.estimator import GravityEstimator, preset
-from .common import CampaignConfig, errors_of, sets_for, simulate
+from .common import CampaignConfig, errors_of, harmonic_option, sets_for, simulate
 from .config import option
 from .continual_report import continual_figure, continual_readme
 from .runner import Experiment, RunContext, RunOutput, register
@@ -30,6 +30,7 @@ class ContinualExperimentConfig(CampaignConfig):
 
     stages: int = option(4, "Stages (orbits split evenly, in grid order).")
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    harmonic: float = harmonic_option("network-best")
     sh_degree: int = option(8, "SH degree.")
 
 
@@ -52,7 +53,9 @@ class ContinualExperiment(Experiment):
         groups = np.array_split(np.arange(config.orbits), config.stages)
         arriving = [arcs.arcs_of(g) for g in groups]
         models = {
-            "network-best": preset("network-best", hidden=config.hidden),
+            "network-best": preset(
+                "network-best", hidden=config.hidden, harmonic=config.harmonic or None
+            ),
             f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
         }
         counts = np.cumsum([len(a) for a in arriving])

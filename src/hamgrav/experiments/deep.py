@@ -33,7 +33,15 @@ from ..core.fields import pointwise_field_errors
 from ..errors import InputError
 from ..fit.continual import fit_continual
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
-from .common import CampaignConfig, campaign_artefacts, errors_of, network_best, sets_for, simulate
+from .common import (
+    CampaignConfig,
+    campaign_artefacts,
+    errors_of,
+    harmonic_option,
+    network_best,
+    sets_for,
+    simulate,
+)
 from .config import option
 from .deep_report import bins_figure, deep_readme, geometry_figure, maps_figure
 from .runner import Experiment, RunContext, RunOutput, register
@@ -91,11 +99,7 @@ class DeepExperimentConfig(CampaignConfig):
         "(must be among --sh-degrees).",
     )
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
-    harmonic: float = option(
-        1e-5,
-        "Weight of the network's harmonic penalty (its Laplacian, scaled by (r / R_w)^5, at "
-        "1500 points outside the body out to the farthest sample; 0: off).",
-    )
+    harmonic: float = harmonic_option()
     lm_iterations: int = option(30, "LM iteration cap of each network member at the first stage.")
     warm_iterations: int = option(
         NETWORK_WARM_SOLVER.max_iter,
@@ -127,8 +131,6 @@ class DeepExperimentConfig(CampaignConfig):
             raise InputError(
                 f"map_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"
             )
-        if self.harmonic < 0:
-            raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
         if not self.hidden or any(h < 1 for h in self.hidden):
             raise InputError("hidden must be one or more positive layer sizes, e.g. 24,24")
         if self.lm_iterations < 1 or self.warm_iterations < 1:

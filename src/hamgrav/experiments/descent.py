@@ -30,6 +30,7 @@ from .common import (
     campaign_artefacts,
     errors_of,
     fit,
+    harmonic_option,
     network_best,
     sets_for,
     simulate,
@@ -81,11 +82,7 @@ class DescentExperimentConfig(CampaignConfig):
     adam_steps: int = option(1500, "Adam steps of the 'network' row (the paper's protocol).")
     learning_rate: float = option(1e-2, "Adam peak learning rate.")
     lm_iterations: int = option(30, "LM iteration cap of the 'network-best' row.")
-    harmonic: float = option(
-        0.0,
-        "Weight of the harmonic penalty of the 'network-best' row (its Laplacian, scaled by "
-        "(r / R_w)^5, at 1500 points outside the body; 0: off).",
-    )
+    harmonic: float = harmonic_option()
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
     prior: str = option(
         "none",
@@ -104,8 +101,6 @@ class DescentExperimentConfig(CampaignConfig):
 
     def check(self) -> None:
         super().check()
-        if self.harmonic < 0:
-            raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
         if self.prior not in ("none", "shape", "both"):
             raise InputError(f"prior must be 'none', 'shape' or 'both', got {self.prior!r}")
         if self.compare_with:

@@ -20,7 +20,15 @@ from matplotlib.figure import Figure
 
 from ..bodies.interiors import INTERIORS
 from ..errors import InputError
-from .common import CampaignConfig, errors_of, fit, network_best, sets_for, simulate
+from .common import (
+    CampaignConfig,
+    errors_of,
+    fit,
+    harmonic_option,
+    network_best,
+    sets_for,
+    simulate,
+)
 from .config import option
 from .runner import Experiment, RunContext, RunOutput, format_range, register
 
@@ -42,6 +50,7 @@ class InteriorsExperimentConfig(CampaignConfig):
     truths: tuple[str, ...] = option(("head-tail", "void"), "Truth interiors, each a campaign.")
     sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH residual degrees (LM).")
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    harmonic: float = harmonic_option("network-scratch and shape+network")
     lm_iterations: int = option(30, "LM iteration cap of each network member.")
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
     shells_rb: tuple[float, ...] = option((1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].")
@@ -69,7 +78,7 @@ class InteriorsExperiment(Experiment):
     }
 
     def run(self, config: InteriorsExperimentConfig, ctx: RunContext) -> RunOutput:
-        best = network_best(config.hidden, config.lm_iterations)
+        best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic)
         rows = {
             "shape": {"term": "none", "prior": "shape"},
             "network-scratch": best,

@@ -30,7 +30,7 @@ from ..bodies.catalogue import load_body
 from ..bodies.interiors import INTERIORS, build_truth
 from ..errors import InputError
 from ..sim.particles import SwarmConfig, simulate_swarm, solar_radiation_pressure
-from .common import errors_of, fit, network_best, sets_for
+from .common import errors_of, fit, harmonic_option, network_best, sets_for
 from .config import ExperimentConfig, option
 from .runner import (
     Experiment,
@@ -80,6 +80,7 @@ class SwarmExperimentConfig(ExperimentConfig):
     sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees of the joint fits (LM).")
     gravity_only_degree: int = option(8, "SH degree of the gravity-only fit.")
     hidden: tuple[int, ...] = option((16, 16), "Hidden layer sizes of the network.")
+    harmonic: float = harmonic_option("network")
     lm_iterations: int = option(30, "LM iteration cap of the network fits.")
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
     shells_rb: tuple[float, ...] = option((1.05, 1.2), "Evaluation shells [R_B].")
@@ -94,6 +95,8 @@ class SwarmExperimentConfig(ExperimentConfig):
             raise InputError("--sh-degrees must list degrees of at least 2, e.g. 4,8,12")
         if self.gravity_only_degree < 2:
             raise InputError("--gravity-only-degree must be at least 2")
+        if self.harmonic < 0:
+            raise InputError(f"--harmonic must be >= 0 (0: off), got {self.harmonic}")
         try:
             self.swarm()
         except InputError as exc:
@@ -156,7 +159,9 @@ class SwarmExperiment(Experiment):
         )
         srp = solar_radiation_pressure(truth.body.units, swarm)
         joint = {"per_trajectory": (srp,), "estimate_trajectory_params": True}
-        best = network_best(config.hidden, config.lm_iterations, members=1)
+        best = network_best(
+            config.hidden, config.lm_iterations, harmonic=config.harmonic, members=1
+        )
         best["warm_solver"] = None
         rows = {
             ("joint", f"sh{d}"): {"term": "sh", "degree": d, **joint} for d in config.sh_degrees
