@@ -67,7 +67,10 @@ class SwarmExperimentConfig(ExperimentConfig):
     cadence_s: float = option(39.0, "Time between samples [s].")
     window_s: float = option(16_200.0, "Tracking span of each particle from ejection [s].")
     area_to_mass_m2_kg: tuple[float, ...] = option(
-        (0.005, 0.075), "A/m range [m^2/kg] (log-uniform, stratified over the particles)."
+        (0.02, 0.3),
+        "A/m range [m^2/kg] (log-uniform, stratified over the particles): 0.02-0.3 are "
+        "spheres of 2.5-0.25 cm diameter at 2 g/cm^3, the sizes reported for Bennu's "
+        "particles.",
     )
     speed_escape_fraction: tuple[float, ...] = option(
         (0.6, 1.0), "Ejection speed range relative to the surface, in local escape speeds."
@@ -379,7 +382,9 @@ def swarm_readme(report: dict) -> list[str]:
         "",
         "The network rows are the network-best "
         "configuration (LM, damping floor 1e-8, best validation iterate, "
-        f"{cfg['lm_iterations']} iterations, hidden {cfg['hidden']}) with one member, not the "
+        f"{cfg['lm_iterations']} iterations, hidden {cfg['hidden']}"
+        + (f", harmonic penalty {cfg['harmonic']:g}" if cfg.get("harmonic") else "")
+        + ") with one member, not the "
         "three-member ensemble: an ensemble fits each member on its own and cannot share "
         "per-trajectory parameters, so it cannot estimate A/m. Both network rows use one "
         "member, so joint and gravity-only differ only in the SRP term.",

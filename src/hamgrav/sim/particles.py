@@ -96,7 +96,7 @@ class SwarmConfig:
     samples_per_arc: int = 40
     cadence_s: float = 39.0
     window_s: float = 16_200.0
-    area_to_mass_m2_kg: tuple[float, float] = (0.005, 0.075)
+    area_to_mass_m2_kg: tuple[float, float] = (0.02, 0.3)
     speed_escape_fraction: tuple[float, float] = (0.6, 1.0)
     cone_deg: float = 45.0
     lift_m: float = 0.5
