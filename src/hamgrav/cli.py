@@ -155,6 +155,92 @@ def simulate(
     )
 
 
+@app.command("import-oem")
+def import_oem_command(
+    files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="CCSDS OEM files.")],
+    body_name: Annotated[str, typer.Option("--body", help="The central body (catalogue name).")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],
+    samples: Annotated[
+        int | None,
+        typer.Option(help="Samples per arc (default: each gap-free run of samples is one arc)."),
+    ] = None,
+    max_gap: Annotated[
+        float | None,
+        typer.Option(help="Split where samples are more than this apart [s] (1.5 median step)."),
+    ] = None,
+    sigma_r: Annotated[float | None, typer.Option(help="Position noise per component [m].")] = None,
+    sigma_v: Annotated[
+        float | None, typer.Option(help="Rotating-frame velocity noise per component [m/s].")
+    ] = None,
+    epoch: Annotated[
+        str | None, typer.Option(help="TDB epoch of canonical time 0 (ISO; default: first sample).")
+    ] = None,
+    origin: Annotated[
+        str | None, typer.Option(help="Frame origin in the body mesh's frame, x,y,z [m].")
+    ] = None,
+    pole_ra: Annotated[
+        float | None, typer.Option(help="Inertial frames: pole right ascension [deg, ICRF].")
+    ] = None,
+    pole_dec: Annotated[
+        float | None, typer.Option(help="Inertial frames: pole declination [deg, ICRF].")
+    ] = None,
+    prime_meridian: Annotated[
+        float | None,
+        typer.Option(help="Inertial frames: prime meridian W0 at --rotation-epoch [deg]."),
+    ] = None,
+    rotation_epoch: Annotated[
+        str, typer.Option(help="TDB epoch (ISO) of the prime meridian angle W0.")
+    ] = "2000-01-01T12:00:00",
+) -> None:
+    """Turn CCSDS OEM tracking files (KVN or XML, one trajectory each) into an arcs file.
+
+    States in an inertial frame (ICRF, EME2000) are rotated into the body-fixed frame with the
+    body's rotation model (pole and prime meridian from the options or the catalogue, spin
+    rate from the body's spin period). The arcs carry no truth: fit them, and evaluate
+    reports residuals against the noise."""
+    from .bodies.rotation import RotationModel
+    from .io.arcs import save_arcs
+    from .io.oem_import import import_oem
+
+    try:
+        body_obj = load_body(body_name)
+        rotation = None
+        given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
+        if any(given) and not all(given):
+            raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
+        if all(given):
+            rotation = RotationModel(
+                pole_ra, pole_dec, prime_meridian, body_obj.spin_period_s, rotation_epoch
+            )
+        origin_m = None
+        if origin is not None:
+            origin_m = _floats(origin, "--origin")
+            if len(origin_m) != 3:
+                raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
+        arcs = import_oem(
+            files,
+            body_obj,
+            samples=samples,
+            max_gap_s=max_gap,
+            rotation=rotation,
+            epoch=epoch,
+            sigma_r_m=sigma_r,
+            sigma_v_m_s=sigma_v,
+            origin_m=origin_m,
+        )
+        save_arcs(arcs, output)
+    except HamgravError as exc:
+        _fail(exc)
+    cfg = arcs.config
+    console.print(
+        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples from {len(files)} files "
+        f"to {output} (frames: {', '.join(cfg['frames'])}; canonical time 0 = "
+        f"{cfg['epoch_tdb']} TDB; noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} "
+        f"m, sigma_v {arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
+        highlight=False,
+    )
+
+
 def _model_option(model: str) -> dict:
     """Estimator settings of a --model value: a named configuration or sh:L."""
     from .fit.estimator import PRESETS, preset
@@ -328,12 +414,16 @@ def evaluate(
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Relative field errors of a fitted model against the truth recorded with the arcs."""
+    """Relative field errors of a fitted model against the truth recorded with the arcs.
+
+    Arcs without a truth (imported tracking) give what needs none instead: residuals per arc
+    against the noise, a chi-square, and the fitted field on the requested sets."""
     from .bodies.evaluation import evaluation_sets, set_label
     from .core.fields import field_errors
     from .fit.estimator import body_for_arcs
     from .io.arcs import load_arcs
     from .io.models import load_model
+    from .io.oem_import import has_truth
 
     try:
         fitted = load_model(model_file)
@@ -348,6 +438,9 @@ def evaluate(
         sets = evaluation_sets(
             body_for_arcs(arcs), _floats(shells, "--shells"), _floats(altitude, "--altitude")
         )
+        if not has_truth(arcs):
+            _evaluate_without_truth(model_file, fitted, arcs, sets, as_json)
+            return
         errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
     except HamgravError as exc:
         _fail(exc)
@@ -360,6 +453,77 @@ def evaluate(
     for name, value in errors.items():
         table.add_row(set_label(name), f"{value:.4f}")
     console.print(table)
+
+
+NO_TRUTH_NOTE = (
+    "these arcs carry no truth (imported tracking): relative field errors need simulated "
+    "arcs ('hamgrav simulate')"
+)
+
+
+def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool) -> None:
+    """The evaluate report of arcs without a truth: residuals, chi-square, fitted field."""
+    import numpy as np
+
+    from .bodies.evaluation import set_label
+    from .fit.residuals import field_summary, residual_report
+
+    report = residual_report(fitted, arcs)
+    field = field_summary(fitted, sets)
+    if as_json:
+        out = {
+            "model": str(model_file),
+            "field_error": None,
+            "note": NO_TRUTH_NOTE,
+            "residuals": report,
+            "field": field,
+        }
+        sys.stdout.write(json.dumps(out) + "\n")
+        return
+    rp, rv = np.asarray(report["rms_position_m"]), np.asarray(report["rms_velocity_mm_s"])
+    table = Table(title=escape(f"residuals of {model_file} on {arcs.n_arcs} arcs (no truth)"))
+    table.add_column("quantity")
+    table.add_column("median", justify="right")
+    table.add_column("max", justify="right")
+    table.add_column("noise sigma", justify="right")
+    table.add_row(
+        escape("RMS position residual [m]"),
+        f"{np.median(rp):.4g}",
+        f"{rp.max():.4g}",
+        f"{report['sigma_r_m']:.4g}",
+    )
+    table.add_row(
+        escape("RMS velocity residual [mm/s]"),
+        f"{np.median(rv):.4g}",
+        f"{rv.max():.4g}",
+        f"{report['sigma_v_mm_s']:.4g}",
+    )
+    console.print(table)
+    console.print(
+        f"chi2 {report['chi2']:.6g} on {report['dof']} degrees of freedom: "
+        f"chi2/dof {report['chi2_per_dof']:.4g} (no correction: "
+        f"{report['chi2_per_dof_no_correction']:.4g}; each arc starts at its first noisy "
+        "sample, whose noise propagates, so even the true field gives more than 1)",
+        highlight=False,
+    )
+    table = Table(title="fitted field (RMS over each set)")
+    for col in (
+        "evaluation set",
+        "perturbing V [m^2/s^2]",
+        "learned V [m^2/s^2]",
+        "perturbing |a| [m/s^2]",
+    ):
+        table.add_column(escape(col), justify="right")
+    for name, row in field.items():
+        learned = row.get("rms_learnable_potential_m2_s2")
+        table.add_row(
+            set_label(name),
+            f"{row['rms_perturbing_potential_m2_s2']:.4g}",
+            "-" if learned is None else f"{learned:.4g}",
+            f"{row['rms_perturbing_acceleration_m_s2']:.4g}",
+        )
+    console.print(table)
+    console.print(NO_TRUTH_NOTE, highlight=False)
 
 
 @app.command()

@@ -1,0 +1,69 @@
+"""The import-oem and export commands (tracking in, coefficients and networks out)."""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hamgrav.cli import app
+from hamgrav.io.arcs import load_arcs
+from hamgrav.io.oem import export_oem_by_trajectory
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def oem_files(small_arcs, tmp_path_factory):
+    return export_oem_by_trajectory(small_arcs, tmp_path_factory.mktemp("oem"))
+
+
+@pytest.fixture(scope="module")
+def imported(oem_files, tmp_path_factory):
+    out = tmp_path_factory.mktemp("imported") / "arcs.h5"
+    result = runner.invoke(
+        app, ["import-oem", *map(str, oem_files), "--body", "synthetic", "-o", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    assert "wrote 9 arcs of 40 samples from 3 files" in " ".join(result.output.split())
+    return out
+
+
+def test_import_oem_round_trip(imported, small_arcs):
+    arcs = load_arcs(imported)
+    np.testing.assert_allclose(arcs.times, small_arcs.times, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(arcs.states, small_arcs.states, rtol=0, atol=1e-9)
+
+
+def test_fit_and_evaluate_without_truth(imported, tmp_path):
+    model = tmp_path / "sh2.h5"
+    result = runner.invoke(app, ["fit", str(imported), "--model", "sh:2", "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["evaluate", str(model), "--shells", "1.5", "--json"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert out["field_error"] is None and "need simulated arcs" in out["note"]
+    res = out["residuals"]
+    assert len(res["rms_position_m"]) == 9 and res["sigma_r_m"] == 0.05
+    assert res["chi2_per_dof"] < 0.2 * res["chi2_per_dof_no_correction"]
+    assert set(out["field"]) == {"r1.5", "h30m"}
+    assert out["field"]["r1.5"]["rms_learnable_potential_m2_s2"] > 0
+    result = runner.invoke(app, ["evaluate", str(model), "--shells", "1.5"])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "RMS position residual [m]" in text and "relative field errors need simulated" in text
+
+
+def test_import_oem_errors_are_one_line(oem_files, tmp_path):
+    out = tmp_path / "a.h5"
+    result = runner.invoke(
+        app,
+        ["import-oem", str(oem_files[0]), "--body", "synthetic", "-o", str(out), "--pole-ra", "3"],
+    )
+    assert result.exit_code == 2
+    assert "give all of --pole-ra, --pole-dec and --prime-meridian" in result.output
+    result = runner.invoke(
+        app, ["import-oem", str(tmp_path / "x.oem"), "--body", "synthetic", "-o", str(out)]
+    )
+    assert result.exit_code == 2 and "OEM file not found" in result.output
+    assert not out.exists()
