@@ -67,3 +67,73 @@ def test_import_oem_errors_are_one_line(oem_files, tmp_path):
     )
     assert result.exit_code == 2 and "OEM file not found" in result.output
     assert not out.exists()
+
+
+def test_export_sh4_fit_to_icgem_read_by_pyshtools(imported, tmp_path):
+    """The issue's contract: an SH 4 fit exported to ICGEM gives, through pyshtools, the
+    same potential 1.5 R_B from the centre to 1e-12."""
+    import math
+
+    import pyshtools as pysh
+
+    from hamgrav.core.model import evaluate_field
+    from hamgrav.io.models import load_model
+    from hamgrav.units import CanonicalUnits
+
+    model = tmp_path / "sh4.h5"
+    result = runner.invoke(app, ["fit", str(imported), "--model", "sh:4", "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    gfc = tmp_path / "sh4.gfc"
+    result = runner.invoke(app, ["export", str(model), "--format", "icgem", "-o", str(gfc)])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "C00 = 1 (central term included), formal errors from" in text
+    coeffs = pysh.SHGravCoeffs.from_file(gfc, format="icgem", errors="formal")
+    fitted = load_model(model)
+    units = CanonicalUnits(fitted.gm_m3_s2, fitted.spin_period_s)
+    r_b = fitted.model.learnable.reference_radius  # the Brillouin radius
+    assert math.isclose(coeffs.r0, units.from_length(r_b), rel_tol=1e-15)
+    lat, lon = 0.35, 2.2
+    q = (
+        1.5
+        * r_b
+        * np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    )
+    v_model = float(
+        units.from_potential(evaluate_field(fitted.model, fitted.params, q, "total")[0][0])
+    )
+    r_m = float(units.from_length(1.5 * r_b))
+    cilm = coeffs.to_array(normalization="4pi", csphase=1)
+    scaled = cilm * ((coeffs.r0 / r_m) ** np.arange(5))[None, :, None]
+    v_file = (
+        coeffs.gm
+        / r_m
+        * pysh.expand.MakeGridPoint(scaled, math.degrees(lat), math.degrees(lon), norm=1, csphase=1)
+    )
+    assert abs(v_file - v_model) <= 1e-12 * abs(v_model)
+    assert np.all(coeffs.errors[:, 2:, :][coeffs.coeffs[:, 2:, :] != 0] > 0)  # formal errors
+
+
+def test_export_refusals_are_one_line(imported, tmp_path):
+    model = tmp_path / "sh2.h5"
+    assert (
+        runner.invoke(app, ["fit", str(imported), "--model", "sh:2", "-o", str(model)]).exit_code
+        == 0
+    )
+    result = runner.invoke(
+        app, ["export", str(model), "--format", "json", "-o", str(tmp_path / "x.json")]
+    )
+    assert result.exit_code == 2 and "export spherical harmonics with --format icgem" in " ".join(
+        result.output.split()
+    )
+    result = runner.invoke(
+        app, ["export", str(model), "--format", "gfc", "-o", str(tmp_path / "x")]
+    )
+    assert result.exit_code == 2 and "--format must be icgem, shadr or json" in result.output
+    result = runner.invoke(
+        app,
+        ["export", str(model), "--format", "shadr", "--no-errors", "-o", str(tmp_path / "x.tab")],
+    )
+    assert result.exit_code == 0 and "no formal errors (--no-errors)" in " ".join(
+        result.output.split()
+    )

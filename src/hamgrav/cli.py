@@ -526,6 +526,103 @@ def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool) -> No
     console.print(NO_TRUTH_NOTE, highlight=False)
 
 
+@app.command("export")
+def export_command(
+    model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
+    fmt: Annotated[
+        str, typer.Option("--format", help="icgem or shadr (SH coefficients), json (network).")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="File to write.")],
+    degree: Annotated[
+        int | None,
+        typer.Option(help="SH degree (default: the SH model's; 8 for a projected network)."),
+    ] = None,
+    arcs_file: Annotated[
+        Path | None,
+        typer.Option("--arcs", help="Arcs for the formal errors (default: the fit's arcs)."),
+    ] = None,
+    errors: Annotated[
+        bool, typer.Option(help="Write formal errors of SH models (needs the fit's arcs).")
+    ] = True,
+) -> None:
+    """Write a model for other tools: SH coefficients (ICGEM, SHADR) or a network (JSON).
+
+    ICGEM and SHADR hold the whole potential (central term C00 = 1, the known part such as
+    a shape prior, the learned correction) as fully normalised coefficients with GM [m^3/s^2]
+    and the reference radius [m]; a network is projected on the sphere at the reference
+    radius (the Brillouin radius). JSON holds a network's layers with the known part."""
+    from .fit.estimator import body_in_frame
+    from .io.models import load_model
+
+    try:
+        fmt = fmt.lower()
+        if fmt not in ("icgem", "shadr", "json"):
+            raise InputError(f"--format must be icgem, shadr or json, got {fmt!r}")
+        fitted = load_model(model_file)
+        if fmt == "json":
+            from .io.network_json import write_network_json
+
+            write_network_json(fitted, output)
+            console.print(f"wrote {output}: the network and the known part, canonical units")
+            return
+        from .core.terms import SphericalHarmonics
+        from .io.shformats import sh_export, write_icgem, write_shadr
+
+        is_sh = isinstance(fitted.model.learnable, SphericalHarmonics)
+        reference = (
+            None
+            if is_sh
+            else body_in_frame(fitted.body_name, fitted.body_origin_m).brillouin_radius
+        )
+        covariance, note = None, "no formal errors (--no-errors)"
+        if errors and is_sh:
+            covariance, note = _formal_covariance(fitted, arcs_file)
+        elif errors:
+            note = "no formal errors: they are computed for SH models only"
+        export = sh_export(
+            fitted,
+            degree=degree if degree is not None or is_sh else 8,
+            reference_radius=reference,
+            covariance=covariance,
+        )
+        if fmt == "icgem":
+            write_icgem(export, output, source=str(model_file))
+        else:
+            write_shadr(export, output)
+    except HamgravError as exc:
+        _fail(exc)
+    console.print(
+        f"wrote {output}: degree {export.degree}, GM {export.gm_m3_s2:.10g} m^3/s^2, reference "
+        f"radius {export.reference_radius_m:.10g} m, fully normalised, C00 = 1 (central term "
+        f"included), {note}",
+        highlight=False,
+    )
+    for line in export.contents:
+        console.print(f"  {line}", highlight=False)
+    for name, value in export.accuracy.items():
+        console.print(
+            f"  relative RMS difference from hamgrav's perturbing potential on r = {name[1:-1]} R:"
+            f" {value:.3e}",
+            highlight=False,
+        )
+
+
+def _formal_covariance(fitted, arcs_file: Path | None):
+    """(covariance or None, a note for the user) of an SH model from its arcs."""
+    from .fit.covariance import formal_covariance
+    from .io.arcs import load_arcs
+
+    source = arcs_file or fitted.solver.get("arcs_file")
+    if source is None or (arcs_file is None and not Path(source).is_file()):
+        return None, "no formal errors: the fit's arcs file is not there (pass --arcs ARCS)"
+    arcs = load_arcs(source)
+    if arcs.body_name != fitted.body_name:
+        raise InputError(
+            f"--arcs: arcs of body {arcs.body_name!r}, the model is of {fitted.body_name!r}"
+        )
+    return formal_covariance(fitted, arcs), f"formal errors from {source}"
+
+
 @app.command()
 def select(
     model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Current model file.")],
