@@ -137,3 +137,14 @@ def test_export_refusals_are_one_line(imported, tmp_path):
     assert result.exit_code == 0 and "no formal errors (--no-errors)" in " ".join(
         result.output.split()
     )
+
+
+def test_kaula_scan_needs_a_truth(imported, tmp_path):
+    result = runner.invoke(
+        app,
+        ["fit", str(imported), "--model", "sh:3", "--kaula", "scan", "-o", str(tmp_path / "m.h5")],
+    )
+    assert result.exit_code == 2
+    assert "these arcs have none (imported tracking); give --kaula ALPHA" in " ".join(
+        result.output.split()
+    )

@@ -423,7 +423,6 @@ def evaluate(
     from .fit.estimator import body_for_arcs
     from .io.arcs import load_arcs
     from .io.models import load_model
-    from .io.oem_import import has_truth
 
     try:
         fitted = load_model(model_file)
@@ -438,7 +437,7 @@ def evaluate(
         sets = evaluation_sets(
             body_for_arcs(arcs), _floats(shells, "--shells"), _floats(altitude, "--altitude")
         )
-        if not has_truth(arcs):
+        if not arcs.has_truth:
             _evaluate_without_truth(model_file, fitted, arcs, sets, as_json)
             return
         errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)

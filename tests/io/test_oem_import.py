@@ -12,7 +12,7 @@ from hamgrav.bodies.rotation import RotationModel
 from hamgrav.errors import DatasetError, InputError
 from hamgrav.io.arcs import load_arcs, save_arcs
 from hamgrav.io.oem import export_oem_by_trajectory
-from hamgrav.io.oem_import import has_truth, import_oem
+from hamgrav.io.oem_import import import_oem
 
 EPOCH = "2030-01-01T00:00:00"  # export_oem's default canonical time 0 (TDB)
 POLE = {"pole_ra_deg": 90.53, "pole_dec_deg": -66.3, "prime_meridian_deg": 37.0}
@@ -40,12 +40,12 @@ def test_round_trip_of_own_export(small_arcs, synthetic, exported, tmp_path):
     assert back.trajectory_kind == small_arcs.trajectory_kind
     assert back.config["noise_from"] == "hamgrav comments"
     assert back.config["epoch_tdb"] == EPOCH + ".000000"
-    assert not has_truth(back) and has_truth(small_arcs)
+    assert not back.has_truth and small_arcs.has_truth
     assert np.isnan(back.true_states).all()
     # and through the arcs file
     again = load_arcs(save_arcs(back, tmp_path / "arcs.h5"))
     assert_same_arcs(again, small_arcs)
-    assert not has_truth(again)
+    assert not again.has_truth
 
 
 def test_xml_gives_the_same_arcs(small_arcs, synthetic, exported, tmp_path):

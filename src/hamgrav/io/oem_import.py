@@ -28,7 +28,7 @@ here, to hamgrav's canonical body-fixed states (q, p):
   the file's 1 microsecond, states to 15 digits).
 
 Imported arcs have no truth: ``true_states`` are NaN, the truth mascon set is empty and
-``interior`` is ``"none"`` (see :func:`has_truth`).
+``interior`` is ``"none"`` (:attr:`Arcs.has_truth` is False).
 """
 
 from __future__ import annotations
@@ -44,19 +44,17 @@ from astropy.time import Time
 
 from ..bodies.catalogue import Body
 from ..bodies.rotation import RotationModel
-from ..core.arcs import Arcs
+from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
 from ..errors import DatasetError, InputError
 from .oem import REF_FRAME as HAMGRAV_FRAME
 
-__all__ = ["import_oem", "has_truth", "BODY_FIXED_FRAMES", "INERTIAL_FRAMES", "NO_TRUTH"]
+__all__ = ["import_oem", "BODY_FIXED_FRAMES", "INERTIAL_FRAMES"]
 
 #: REF_FRAME values read as body-fixed (besides ``IAU_<BODY>``).
 BODY_FIXED_FRAMES = (HAMGRAV_FRAME,)
 #: REF_FRAME values read as inertial (ICRF axes).
 INERTIAL_FRAMES = ("ICRF", "ICRF2", "ICRF3", "EME2000", "J2000", "GCRF")
-#: The ``interior`` of arcs that carry no truth.
-NO_TRUTH = "none"
 
 _COMMENTS = {
     "epoch": re.compile(r"canonical time 0 = (\S+) TDB"),
@@ -65,12 +63,6 @@ _COMMENTS = {
     "spin": re.compile(r"spin period (\S+) s"),
     "sigmas": re.compile(r"sigma_r (\S+) m, sigma_v (\S+) m/s"),
 }
-
-
-def has_truth(arcs: Arcs) -> bool:
-    """Whether ``arcs`` carry a truth to compare models with (simulated arcs do; imported
-    tracking does not)."""
-    return arcs.interior != NO_TRUTH and len(arcs.truth) > 0
 
 
 def _hamgrav_comments(path: Path) -> dict:
