@@ -148,3 +148,26 @@ def test_kaula_scan_needs_a_truth(imported, tmp_path):
     assert "these arcs have none (imported tracking); give --kaula ALPHA" in " ".join(
         result.output.split()
     )
+
+
+def test_evaluate_sigma(imported, arcs_with_truth, tmp_path):
+    model = tmp_path / "sh3.h5"
+    result = runner.invoke(app, ["fit", str(imported), "--model", "sh:3", "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["evaluate", str(model), "--shells", "1.5", "--sigma", "--json"])
+    assert result.exit_code == 0, result.output
+    u = json.loads(result.stdout)["uncertainty"]["r1.5"]
+    assert u["rms_sigma_v_m2_s2"] > 0 and "rms_z" not in u  # no truth: no calibration
+    result = runner.invoke(
+        app,
+        ["evaluate", str(model), "--arcs", str(arcs_with_truth), "--shells", "1.5", "--sigma"],
+    )
+    assert result.exit_code == 0, result.output
+    assert "RMS error / sigma_V" in " ".join(result.output.split())
+
+
+@pytest.fixture(scope="module")
+def arcs_with_truth(small_arcs, tmp_path_factory):
+    from hamgrav.io.arcs import save_arcs
+
+    return save_arcs(small_arcs, tmp_path_factory.mktemp("truth") / "arcs.h5")

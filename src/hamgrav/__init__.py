@@ -82,6 +82,8 @@ _EXPORTS = {
     "write_shadr": "io.shformats",
     "write_network_json": "io.network_json",
     "formal_covariance": "fit.covariance",
+    "uncertainty_report": "fit.covariance",
+    "potential_sigma": "core.uncertainty",
     "residual_report": "fit.residuals",
     # experiments
     "run_experiment": "experiments.runner",

@@ -224,8 +224,8 @@ def _description(exp: SHExport, source: str) -> list[str]:
             for k, v in exp.accuracy.items()
         ),
         (
-            "sigmas: formal, sqrt of the diagonal of the least-squares covariance for white "
-            "noise at the tracking sigmas, anchors exact (no model error)"
+            "sigmas: formal, sqrt of the diagonal of the least-squares covariance under the "
+            "tracking noise (white, plus each arc's noisy first sample); no model error"
             if exp.errors == "formal"
             else "sigmas: none"
         ),
