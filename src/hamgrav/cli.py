@@ -649,6 +649,8 @@ def _formal_covariance(fitted, arcs_file: Path | None):
     from .fit.covariance import formal_covariance
     from .io.arcs import load_arcs
 
+    if fitted.model.per_trajectory:
+        return None, "no formal errors: the model has per-trajectory terms (e.g. SRP)"
     source = arcs_file or fitted.solver.get("arcs_file")
     if source is None or (arcs_file is None and not Path(source).is_file()):
         return None, "no formal errors: the fit's arcs file is not there (pass --arcs ARCS)"
