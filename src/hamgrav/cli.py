@@ -155,6 +155,92 @@ def simulate(
     )
 
 
+@app.command("import-oem")
+def import_oem_command(
+    files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="CCSDS OEM files.")],
+    body_name: Annotated[str, typer.Option("--body", help="The central body (catalogue name).")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],
+    samples: Annotated[
+        int | None,
+        typer.Option(help="Samples per arc (default: each gap-free run of samples is one arc)."),
+    ] = None,
+    max_gap: Annotated[
+        float | None,
+        typer.Option(help="Split where samples are more than this apart [s] (1.5 median step)."),
+    ] = None,
+    sigma_r: Annotated[float | None, typer.Option(help="Position noise per component [m].")] = None,
+    sigma_v: Annotated[
+        float | None, typer.Option(help="Rotating-frame velocity noise per component [m/s].")
+    ] = None,
+    epoch: Annotated[
+        str | None, typer.Option(help="TDB epoch of canonical time 0 (ISO; default: first sample).")
+    ] = None,
+    origin: Annotated[
+        str | None, typer.Option(help="Frame origin in the body mesh's frame, x,y,z [m].")
+    ] = None,
+    pole_ra: Annotated[
+        float | None, typer.Option(help="Inertial frames: pole right ascension [deg, ICRF].")
+    ] = None,
+    pole_dec: Annotated[
+        float | None, typer.Option(help="Inertial frames: pole declination [deg, ICRF].")
+    ] = None,
+    prime_meridian: Annotated[
+        float | None,
+        typer.Option(help="Inertial frames: prime meridian W0 at --rotation-epoch [deg]."),
+    ] = None,
+    rotation_epoch: Annotated[
+        str, typer.Option(help="TDB epoch (ISO) of the prime meridian angle W0.")
+    ] = "2000-01-01T12:00:00",
+) -> None:
+    """Turn CCSDS OEM tracking files (KVN or XML, one trajectory each) into an arcs file.
+
+    States in an inertial frame (ICRF, EME2000) are rotated into the body-fixed frame with the
+    body's rotation model (pole and prime meridian from the options or the catalogue, spin
+    rate from the body's spin period). The arcs carry no truth: fit them, and evaluate
+    reports residuals against the noise."""
+    from .bodies.rotation import RotationModel
+    from .io.arcs import save_arcs
+    from .io.oem_import import import_oem
+
+    try:
+        body_obj = load_body(body_name)
+        rotation = None
+        given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
+        if any(given) and not all(given):
+            raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
+        if all(given):
+            rotation = RotationModel(
+                pole_ra, pole_dec, prime_meridian, body_obj.spin_period_s, rotation_epoch
+            )
+        origin_m = None
+        if origin is not None:
+            origin_m = _floats(origin, "--origin")
+            if len(origin_m) != 3:
+                raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
+        arcs = import_oem(
+            files,
+            body_obj,
+            samples=samples,
+            max_gap_s=max_gap,
+            rotation=rotation,
+            epoch=epoch,
+            sigma_r_m=sigma_r,
+            sigma_v_m_s=sigma_v,
+            origin_m=origin_m,
+        )
+        save_arcs(arcs, output)
+    except HamgravError as exc:
+        _fail(exc)
+    cfg = arcs.config
+    console.print(
+        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples from {len(files)} files "
+        f"to {output} (frames: {', '.join(cfg['frames'])}; canonical time 0 = "
+        f"{cfg['epoch_tdb']} TDB; noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} "
+        f"m, sigma_v {arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
+        highlight=False,
+    )
+
+
 def _model_option(model: str) -> dict:
     """Estimator settings of a --model value: a named configuration or sh:L."""
     from .fit.estimator import PRESETS, preset
@@ -329,8 +415,20 @@ def evaluate(
         typer.Option("--arcs", help="Arcs whose truth to compare with (default: the fit's)."),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    sigma: Annotated[
+        bool,
+        typer.Option(
+            "--sigma",
+            help="SH models: the formal sigma of the potential on each set (and, with a "
+            "truth, how well it is calibrated).",
+        ),
+    ] = False,
 ) -> None:
-    """Relative field errors of a fitted model against the truth recorded with the arcs."""
+    """Relative field errors of a fitted model against the truth recorded with the arcs.
+
+    Arcs without a truth (imported tracking) give what needs none instead: residuals per arc
+    against the noise, a chi-square, and the fitted field on the requested sets. --sigma adds
+    the formal standard deviation of the potential, sqrt(g^T C g), from the arcs' noise."""
     from .bodies.evaluation import evaluation_sets, set_label
     from .core.fields import field_errors
     from .fit.estimator import body_for_arcs
@@ -350,18 +448,220 @@ def evaluate(
         sets = evaluation_sets(
             body_for_arcs(arcs), _floats(shells, "--shells"), _floats(altitude, "--altitude")
         )
+        uncertainty = None
+        if sigma:
+            from .fit.covariance import formal_covariance, uncertainty_report
+
+            covariance = formal_covariance(fitted, arcs)
+            truth = arcs.truth if arcs.has_truth else None
+            uncertainty = uncertainty_report(fitted, covariance, sets, truth)
+        if not arcs.has_truth:
+            _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, uncertainty)
+            return
         errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
     except HamgravError as exc:
         _fail(exc)
     if as_json:
-        sys.stdout.write(json.dumps({"model": str(model_file), "field_error": errors}) + "\n")
+        out = {"model": str(model_file), "field_error": errors}
+        if uncertainty is not None:
+            out["uncertainty"] = uncertainty
+        sys.stdout.write(json.dumps(out) + "\n")
         return
     table = Table(title=escape(f"relative field error of {model_file} ({fitted.body_name})"))
     table.add_column("evaluation set")
     table.add_column("epsilon", justify="right")
+    if uncertainty is not None:
+        for col in ("RMS sigma_V [m^2/s^2]", "RMS error / sigma_V", "within 2 sigma"):
+            table.add_column(escape(col), justify="right")
     for name, value in errors.items():
-        table.add_row(set_label(name), f"{value:.4f}")
+        cells = [set_label(name), f"{value:.4f}"]
+        if uncertainty is not None:
+            u = uncertainty[name]
+            cells += [
+                f"{u['rms_sigma_v_m2_s2']:.3g}",
+                f"{u['rms_z']:.3g}",
+                f"{u['within_2_sigma']:.2f}",
+            ]
+        table.add_row(*cells)
     console.print(table)
+    if uncertainty is not None:
+        console.print(
+            "sigma_V: formal, from the tracking noise (anchors included); an RMS error / sigma_V "
+            "near 1 means calibrated, far above 1 that model error (omitted degrees) dominates",
+            highlight=False,
+        )
+
+
+NO_TRUTH_NOTE = (
+    "these arcs carry no truth (imported tracking): relative field errors need simulated "
+    "arcs ('hamgrav simulate')"
+)
+
+
+def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool, uncertainty) -> None:
+    """The evaluate report of arcs without a truth: residuals, chi-square, fitted field."""
+    import numpy as np
+
+    from .bodies.evaluation import set_label
+    from .fit.residuals import field_summary, residual_report
+
+    report = residual_report(fitted, arcs)
+    field = field_summary(fitted, sets)
+    if as_json:
+        out = {
+            "model": str(model_file),
+            "field_error": None,
+            "note": NO_TRUTH_NOTE,
+            "residuals": report,
+            "field": field,
+        }
+        if uncertainty is not None:
+            out["uncertainty"] = uncertainty
+        sys.stdout.write(json.dumps(out) + "\n")
+        return
+    rp, rv = np.asarray(report["rms_position_m"]), np.asarray(report["rms_velocity_mm_s"])
+    table = Table(title=escape(f"residuals of {model_file} on {arcs.n_arcs} arcs (no truth)"))
+    table.add_column("quantity")
+    table.add_column("median", justify="right")
+    table.add_column("max", justify="right")
+    table.add_column("noise sigma", justify="right")
+    table.add_row(
+        escape("RMS position residual [m]"),
+        f"{np.median(rp):.4g}",
+        f"{rp.max():.4g}",
+        f"{report['sigma_r_m']:.4g}",
+    )
+    table.add_row(
+        escape("RMS velocity residual [mm/s]"),
+        f"{np.median(rv):.4g}",
+        f"{rv.max():.4g}",
+        f"{report['sigma_v_mm_s']:.4g}",
+    )
+    console.print(table)
+    console.print(
+        f"chi2 {report['chi2']:.6g} on {report['dof']} degrees of freedom: "
+        f"chi2/dof {report['chi2_per_dof']:.4g} (no correction: "
+        f"{report['chi2_per_dof_no_correction']:.4g}); about 1 when the model explains the "
+        "arcs down to the noise (white noise and each arc's noisy first sample)",
+        highlight=False,
+    )
+    table = Table(title="fitted field (RMS over each set)")
+    columns = ["evaluation set", "perturbing V [m^2/s^2]", "learned V [m^2/s^2]"]
+    columns += ["perturbing |a| [m/s^2]"] + (["sigma_V [m^2/s^2]"] if uncertainty else [])
+    for col in columns:
+        table.add_column(escape(col), justify="right")
+    for name, row in field.items():
+        learned = row.get("rms_learnable_potential_m2_s2")
+        cells = [
+            set_label(name),
+            f"{row['rms_perturbing_potential_m2_s2']:.4g}",
+            "-" if learned is None else f"{learned:.4g}",
+            f"{row['rms_perturbing_acceleration_m_s2']:.4g}",
+        ]
+        if uncertainty:
+            cells.append(f"{uncertainty[name]['rms_sigma_v_m2_s2']:.3g}")
+        table.add_row(*cells)
+    console.print(table)
+    console.print(NO_TRUTH_NOTE, highlight=False)
+
+
+@app.command("export")
+def export_command(
+    model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
+    fmt: Annotated[
+        str, typer.Option("--format", help="icgem or shadr (SH coefficients), json (network).")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="File to write.")],
+    degree: Annotated[
+        int | None,
+        typer.Option(help="SH degree (default: the SH model's; 8 for a projected network)."),
+    ] = None,
+    arcs_file: Annotated[
+        Path | None,
+        typer.Option("--arcs", help="Arcs for the formal errors (default: the fit's arcs)."),
+    ] = None,
+    errors: Annotated[
+        bool, typer.Option(help="Write formal errors of SH models (needs the fit's arcs).")
+    ] = True,
+) -> None:
+    """Write a model for other tools: SH coefficients (ICGEM, SHADR) or a network (JSON).
+
+    ICGEM and SHADR hold the whole potential (central term C00 = 1, the known part such as
+    a shape prior, the learned correction) as fully normalised coefficients with GM [m^3/s^2]
+    and the reference radius [m]; a network is projected on the sphere at the reference
+    radius (the Brillouin radius). JSON holds a network's layers with the known part."""
+    from .fit.estimator import body_in_frame
+    from .io.models import load_model
+
+    try:
+        fmt = fmt.lower()
+        if fmt not in ("icgem", "shadr", "json"):
+            raise InputError(f"--format must be icgem, shadr or json, got {fmt!r}")
+        fitted = load_model(model_file)
+        if fmt == "json":
+            from .io.network_json import write_network_json
+
+            write_network_json(fitted, output)
+            console.print(f"wrote {output}: the network and the known part, canonical units")
+            return
+        from .core.terms import SphericalHarmonics
+        from .io.shformats import sh_export, write_icgem, write_shadr
+
+        is_sh = isinstance(fitted.model.learnable, SphericalHarmonics)
+        reference = (
+            None
+            if is_sh
+            else body_in_frame(fitted.body_name, fitted.body_origin_m).brillouin_radius
+        )
+        covariance, note = None, "no formal errors (--no-errors)"
+        if errors and is_sh:
+            covariance, note = _formal_covariance(fitted, arcs_file)
+        elif errors:
+            note = "no formal errors: they are computed for SH models only"
+        export = sh_export(
+            fitted,
+            degree=degree if degree is not None or is_sh else 8,
+            reference_radius=reference,
+            covariance=covariance,
+        )
+        if fmt == "icgem":
+            write_icgem(export, output, source=str(model_file))
+        else:
+            write_shadr(export, output)
+    except HamgravError as exc:
+        _fail(exc)
+    console.print(
+        f"wrote {output}: degree {export.degree}, GM {export.gm_m3_s2:.10g} m^3/s^2, reference "
+        f"radius {export.reference_radius_m:.10g} m, fully normalised, C00 = 1 (central term "
+        f"included), {note}",
+        highlight=False,
+    )
+    for line in export.contents:
+        console.print(f"  {line}", highlight=False)
+    for name, value in export.accuracy.items():
+        console.print(
+            f"  relative RMS difference from hamgrav's perturbing potential on r = {name[1:-1]} R:"
+            f" {value:.3e}",
+            highlight=False,
+        )
+
+
+def _formal_covariance(fitted, arcs_file: Path | None):
+    """(covariance or None, a note for the user) of an SH model from its arcs."""
+    from .fit.covariance import formal_covariance
+    from .io.arcs import load_arcs
+
+    if fitted.model.per_trajectory:
+        return None, "no formal errors: the model has per-trajectory terms (e.g. SRP)"
+    source = arcs_file or fitted.solver.get("arcs_file")
+    if source is None or (arcs_file is None and not Path(source).is_file()):
+        return None, "no formal errors: the fit's arcs file is not there (pass --arcs ARCS)"
+    arcs = load_arcs(source)
+    if arcs.body_name != fitted.body_name:
+        raise InputError(
+            f"--arcs: arcs of body {arcs.body_name!r}, the model is of {fitted.body_name!r}"
+        )
+    return formal_covariance(fitted, arcs), f"formal errors from {source}"
 
 
 @app.command()

@@ -23,6 +23,7 @@ import trimesh
 
 from ..errors import BodyDataError, InputError
 from ..units import CanonicalUnits
+from .rotation import J2000_TDB, RotationModel
 
 __all__ = [
     "Body",
@@ -51,6 +52,8 @@ class Body:
         description: free text (provenance).
         data_files: named data files that came with the body (e.g. reference mascons).
         origin_m: position [m], in the mesh's own frame, of this body's frame origin.
+        rotation: the body's rotation model in the ICRF (pole, prime meridian; the spin rate
+            is ``spin_period_s``'s), when the catalogue entry has a ``rotation`` object.
     """
 
     name: str
@@ -60,6 +63,7 @@ class Body:
     description: str = ""
     data_files: dict[str, Path] = field(default_factory=dict)
     origin_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotation: RotationModel | None = None
 
     @cached_property
     def units(self) -> CanonicalUnits:
@@ -212,10 +216,20 @@ def load_body(
         period = float(entry["spin_period_s"])
         files = dict(entry["files"])
         mesh_file = files["mesh_low" if low_resolution else "mesh"]
+        rotation = entry.get("rotation")
+        if rotation is not None:
+            rotation = RotationModel(
+                float(rotation["pole_ra_deg"]),
+                float(rotation["pole_dec_deg"]),
+                float(rotation["prime_meridian_deg"]),
+                period,
+                str(rotation.get("epoch_tdb", J2000_TDB)),
+            )
     except (KeyError, TypeError, ValueError) as exc:
         raise BodyDataError(
             f"catalogue entry {key!r} in {folder / 'catalogue.json'} is malformed (missing or "
-            f"bad field {exc}); it needs gm_m3_s2, spin_period_s and files.mesh"
+            f"bad field {exc}); it needs gm_m3_s2, spin_period_s and files.mesh (and, when "
+            "given, rotation.pole_ra_deg, pole_dec_deg and prime_meridian_deg)"
         ) from None
     body_folder = folder / key
     mesh = _load_mesh(body_folder / mesh_file)
@@ -226,6 +240,7 @@ def load_body(
         mesh_m=mesh,
         description=str(entry.get("description", "")),
         data_files={k: body_folder / v for k, v in files.items()},
+        rotation=rotation,
     )
 
 

@@ -8,7 +8,10 @@ import numpy as np
 
 from .mascons import MasconSet
 
-__all__ = ["Arcs"]
+__all__ = ["Arcs", "NO_TRUTH"]
+
+#: The ``interior`` of arcs that carry no truth (tracking imported from files).
+NO_TRUTH = "none"
 
 
 @dataclass(frozen=True, eq=False)
@@ -27,7 +30,8 @@ class Arcs:
         body_origin_m: frame origin of the arcs in the body mesh's own frame [m].
         sigma_r_m [m], sigma_v_m_s [m/s]: noise levels per component.
         truth: the truth mascons (canonical, arcs' frame), ``interior`` its name,
-            ``interior_parameters`` its settings.
+            ``interior_parameters`` its settings (empty and :data:`NO_TRUTH` for imported
+            tracking, see :attr:`has_truth`).
         seed: generator seed of the campaign; config: the campaign description.
     """
 
@@ -60,6 +64,13 @@ class Arcs:
             raise ValueError("trajectory must hold one index per arc")
         if n and (self.trajectory.min() < 0 or self.trajectory.max() >= len(self.trajectory_kind)):
             raise ValueError("trajectory indices must refer to trajectory_kind entries")
+
+    @property
+    def has_truth(self) -> bool:
+        """Whether the arcs carry a truth to compare models with (simulated arcs do; imported
+        tracking does not: ``interior`` is :data:`NO_TRUTH`, no truth mascons, NaN
+        ``true_states``)."""
+        return self.interior != NO_TRUTH and len(self.truth) > 0
 
     @property
     def n_arcs(self) -> int:

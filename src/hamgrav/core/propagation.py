@@ -9,11 +9,14 @@ and the integrators come from the one compile cache of :mod:`hamgrav.core.model`
   grid, in SIMD batches over threads, optionally with d state / d runtime-parameters.
 - :func:`propagate_scalar`: one trajectory to a time grid (long truth propagations).
 - :func:`propagate_to_contact`: one trajectory until it crosses a closed surface.
+- :func:`state_transition`: d state(t_k) / d state(t_0) along trajectories (first-order
+  variational equations with respect to the initial state).
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -21,7 +24,7 @@ import heyoka as hy
 import numpy as np
 
 from .geometry import points_inside
-from .model import DEFAULT_FIT_TOLERANCE, Model, compiled_integrators
+from .model import DEFAULT_FIT_TOLERANCE, Model, _cached, compiled_integrators
 
 __all__ = [
     "BatchPropagation",
@@ -29,6 +32,7 @@ __all__ = [
     "propagate_batch",
     "propagate_scalar",
     "propagate_to_contact",
+    "state_transition",
 ]
 
 
@@ -183,6 +187,56 @@ def propagate_scalar(
     n = len(states)
     out[:n] = states
     return out, bool(res[0] == hy.taylor_outcome.time_limit and n == len(times))
+
+
+def state_transition(
+    model: Model,
+    states0: np.ndarray,
+    times: np.ndarray,
+    runtime_params: np.ndarray | None = None,
+    *,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+) -> np.ndarray:
+    """Phi (n, m, 6, 6) = d state(times[i, k]) / d state(times[i, 0]) for the trajectories
+    starting at ``states0`` (n, 6) at ``times[:, 0]``, runtime parameters (n_system_params, n);
+    canonical, Phi[i, 0] = identity. NaN rows for a trajectory that does not reach its last
+    time. One compiled scalar integrator (heyoka ``var_ode_sys`` with respect to the state
+    variables), cached like the others."""
+
+    def build():
+        sys = hy.var_ode_sys(model.system(), hy.var_args.vars, order=1)
+        state = np.zeros(42)
+        state[0] = state[4] = 1.0
+        kwargs = {"tol": tol, "compact_mode": True}
+        if model.n_system_params:
+            kwargs["pars"] = np.zeros(model.n_system_params)
+        return hy.taylor_adaptive(sys, state, **kwargs)
+
+    states0 = np.asarray(states0, dtype=float)
+    times = np.asarray(times, dtype=float)
+    n, n_m = times.shape
+    n_sys = model.n_system_params
+    if runtime_params is None:
+        runtime_params = np.zeros((n_sys, n))
+    runtime_params = np.asarray(runtime_params, dtype=float).reshape(n_sys, n)
+    ta = _cached((model.key(), "transition", "var-state", float(tol)), build)
+    out = np.full((n, n_m, 6, 6), np.nan)
+    identity = np.eye(6).ravel()
+    with _TRANSITION_LOCK:
+        for i in range(n):
+            ta.time = float(times[i, 0])
+            ta.state[:6] = states0[i]
+            ta.state[6:] = identity
+            if n_sys:
+                ta.pars[:] = runtime_params[:, i]
+            res = ta.propagate_grid(np.ascontiguousarray(times[i]))
+            grid = res[-1]
+            if len(grid) == n_m and np.all(np.isfinite(grid)):
+                out[i] = grid[:, 6:].reshape(n_m, 6, 6)
+    return out
+
+
+_TRANSITION_LOCK = threading.Lock()
 
 
 def _set_scalar(ta, model: Model, state0, t0: float, params) -> None:

@@ -123,6 +123,11 @@ def truth_shell_metric(arcs: Arcs, body: Body, shell_rb: float = 1.05):
     from ..bodies.evaluation import evaluation_sets
     from ..core.fields import field_errors
 
+    if not arcs.has_truth:
+        raise InputError(
+            "the Kaula scan scores each alpha by the field error against the truth, and these "
+            "arcs have none (imported tracking); give --kaula ALPHA"
+        )
     sets = evaluation_sets(body, (shell_rb,), ())
 
     def metric(params, model):

@@ -144,7 +144,7 @@ def export_oem(
     )
     message = OrbitEphemerisMessage(header, segments)  # checks the package's constraints
 
-    origin = ", ".join(f"{c:.6g}" for c in arcs.body_origin_m)
+    origin = ", ".join(repr(float(c)) for c in arcs.body_origin_m)
     header_comments = [
         f"hamgrav arcs of {arcs.body_name}, trajectory {kind}-{traj}, seed {arcs.seed}, "
         f"{'noisy' if noisy else 'true'} states, one segment per arc",
@@ -155,8 +155,8 @@ def export_oem(
     ]
     if noisy:
         header_comments.append(
-            f"noise per component: sigma_r {arcs.sigma_r_m:.6g} m, "
-            f"sigma_v {arcs.sigma_v_m_s:.6g} m/s"
+            f"noise per component: sigma_r {float(arcs.sigma_r_m)!r} m, "
+            f"sigma_v {float(arcs.sigma_v_m_s)!r} m/s"
         )
     with atomic_path(path, suffix=".oem") as tmp:
         message.save_as(tmp, file_format="kvn")

@@ -1,0 +1,132 @@
+"""A network model as a framework-free JSON file: everything needed to evaluate its potential.
+
+The file (``"format": "hamgrav-network"``) holds, in canonical units (length = the
+synchronous radius, time = spin period / 2 pi, so GM = 1; ``units`` gives their SI values)
+and in the body-fixed frame of the fit (z along the spin axis, origin ``body.origin_m`` in
+the shape model's frame):
+
+- ``known``: the known part of the potential, a list of terms: ``{"kind": "point-mass",
+  "mu"}`` (mu / r: the central term) or ``{"kind": "mascons", "positions" (n, 3),
+  "masses" (n,)}`` (sum m_i / |q - q_i|: a shape prior, whose masses sum to 1 and so
+  carries the central term);
+- ``network``: the learned correction N(q) = scale * (envelope_radius / |q|)^3 * NN(q), NN
+  the mean over ``members`` of a fully connected network with inputs (x, y, z), tanh hidden
+  layers and one linear output: x_{k+1} = tanh(W_k x_k + b_k), output W x + b, with
+  ``weights[k]`` of shape (out, in) and ``biases[k]`` of shape (out,);
+- the potential is V(q) = sum of the known terms + N(q), positive (the acceleration is
+  grad V), in units of ``units.potential_m2_s2``.
+
+Per-trajectory terms (e.g. SRP) are not gravity and are not written. The README's "Import
+and export" section holds a short numpy function that evaluates the file; a test checks it
+against hamgrav to 1e-12.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..core.terms import MasconTerm, NeuralPotential, PointMass
+from ..errors import InputError
+from ..fit.fitted import FittedModel
+from ..units import CanonicalUnits
+from .files import atomic_path
+
+__all__ = ["NETWORK_FORMAT", "network_document", "write_network_json"]
+
+NETWORK_FORMAT = "hamgrav-network"
+NETWORK_FORMAT_VERSION = 1
+
+
+def _member_layers(term: NeuralPotential, block: np.ndarray) -> dict:
+    """One member's weights (out x in, layer by layer) and biases from its parameter block
+    (heyoka ``model.ffnn`` layout: all weights row-major, then all biases)."""
+    sizes = term.layer_sizes
+    weights, biases, k = [], [], 0
+    for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True):
+        weights.append(block[k : k + n_in * n_out].reshape(n_out, n_in).tolist())
+        k += n_in * n_out
+    for n_out in sizes[1:]:
+        biases.append(block[k : k + n_out].tolist())
+        k += n_out
+    return {"weights": weights, "biases": biases}
+
+
+def network_document(fitted: FittedModel) -> dict:
+    """The JSON document (plain data) of a network model (see the module docstring)."""
+    model = fitted.model
+    term = model.learnable
+    if not isinstance(term, NeuralPotential):
+        kind = "none" if term is None else term.key()
+        raise InputError(
+            f"the JSON export is for network models, this one's learnable term is {kind}; "
+            "export spherical harmonics with --format icgem or shadr"
+        )
+    units = CanonicalUnits(fitted.gm_m3_s2, fitted.spin_period_s)
+    known = []
+    for t in model.known:
+        if isinstance(t, PointMass):
+            known.append({"kind": "point-mass", "mu": t.mu})
+        elif isinstance(t, MasconTerm):
+            known.append(
+                {
+                    "kind": "mascons",
+                    "label": t.label,
+                    "positions": t.mascons.positions.tolist(),
+                    "masses": t.mascons.masses.tolist(),
+                }
+            )
+        else:
+            raise InputError(f"cannot export a known term of kind {t.key()!r}")
+    blocks = term.split_members(fitted.learnable_params)
+    return {
+        "format": NETWORK_FORMAT,
+        "format_version": NETWORK_FORMAT_VERSION,
+        "hamgrav_version": __version__,
+        "description": (
+            "V(q) = sum of the known terms + N(q), positive (acceleration = grad V), canonical "
+            "units; N(q) = scale * (envelope_radius / |q|)^3 * mean over members of NN(q); NN: "
+            "x_{k+1} = tanh(W_k x_k + b_k) on hidden layers, linear output; weights[k] is "
+            "(out, in); point-mass: mu / |q|; mascons: sum m_i / |q - q_i|"
+        ),
+        "body": {
+            "name": fitted.body_name,
+            "gm_m3_s2": fitted.gm_m3_s2,
+            "spin_period_s": fitted.spin_period_s,
+            "frame": "body-fixed, z along the spin axis, rotating with the body",
+            "origin_m": list(fitted.body_origin_m),
+        },
+        "units": {
+            "canonical": "length = synchronous radius (GM / omega^2)^(1/3), time = spin "
+            "period / 2 pi, so GM = omega = 1",
+            "length_m": units.length_m,
+            "time_s": units.time_s,
+            "potential_m2_s2": units.potential_m2_s2,
+            "acceleration_m_s2": units.acceleration_m_s2,
+        },
+        "known": known,
+        "network": {
+            "layer_sizes": list(term.layer_sizes),
+            "activation": "tanh",
+            "output_activation": "linear",
+            "scale": term.scale,
+            "envelope_radius": term.envelope_radius,
+            "envelope_power": 3,
+            "members": [_member_layers(term, b) for b in blocks],
+        },
+        "prior": fitted.prior.get("kind") if isinstance(fitted.prior, dict) else None,
+        "not_included": [t.key() for t in model.per_trajectory],
+    }
+
+
+def write_network_json(fitted: FittedModel, path: str | os.PathLike) -> Path:
+    """Write the JSON document of a network model to ``path`` (atomically)."""
+    path = Path(path)
+    doc = network_document(fitted)
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    return path

@@ -1,0 +1,258 @@
+import datetime as dt
+import math
+
+import numpy as np
+import pytest
+from astropy.time import Time, TimeDelta
+from oem import CURRENT_VERSION, OrbitEphemerisMessage
+from oem.components import EphemerisSegment, HeaderSection, MetaDataSection
+from scipy.spatial.transform import Rotation
+
+from hamgrav.bodies.rotation import RotationModel
+from hamgrav.errors import DatasetError, InputError
+from hamgrav.io.arcs import load_arcs, save_arcs
+from hamgrav.io.oem import export_oem_by_trajectory
+from hamgrav.io.oem_import import import_oem
+
+EPOCH = "2030-01-01T00:00:00"  # export_oem's default canonical time 0 (TDB)
+POLE = {"pole_ra_deg": 90.53, "pole_dec_deg": -66.3, "prime_meridian_deg": 37.0}
+
+
+@pytest.fixture(scope="module")
+def exported(small_arcs, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("oem")
+    return export_oem_by_trajectory(small_arcs, folder)
+
+
+def assert_same_arcs(back, arcs):
+    assert back.times.shape == arcs.times.shape
+    np.testing.assert_allclose(back.times, arcs.times, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.states, arcs.states, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(back.trajectory, arcs.trajectory)
+
+
+def test_round_trip_of_own_export(small_arcs, synthetic, exported, tmp_path):
+    back = import_oem(exported, synthetic)
+    assert_same_arcs(back, small_arcs)
+    # the frame, canonical time 0 and the noise come from hamgrav's COMMENT lines
+    assert back.body_origin_m == small_arcs.body_origin_m
+    assert (back.sigma_r_m, back.sigma_v_m_s) == (small_arcs.sigma_r_m, small_arcs.sigma_v_m_s)
+    assert back.trajectory_kind == small_arcs.trajectory_kind
+    assert back.config["noise_from"] == "hamgrav comments"
+    assert back.config["epoch_tdb"] == EPOCH + ".000000"
+    assert not back.has_truth and small_arcs.has_truth
+    assert np.isnan(back.true_states).all()
+    # and through the arcs file
+    again = load_arcs(save_arcs(back, tmp_path / "arcs.h5"))
+    assert_same_arcs(again, small_arcs)
+    assert not again.has_truth
+
+
+def test_xml_gives_the_same_arcs(small_arcs, synthetic, exported, tmp_path):
+    xml = []
+    for path in exported:
+        out = tmp_path / (path.stem + ".xml")
+        OrbitEphemerisMessage.convert(path, out, "xml")
+        xml.append(out)
+    # XML drops the COMMENT lines: the epoch, origin and noise are given
+    back = import_oem(
+        xml,
+        synthetic,
+        epoch=EPOCH,
+        sigma_r_m=small_arcs.sigma_r_m,
+        sigma_v_m_s=small_arcs.sigma_v_m_s,
+        origin_m=small_arcs.body_origin_m,
+    )
+    assert_same_arcs(back, small_arcs)
+    assert back.config["noise_from"] == "options"
+
+
+def _segment(meta, epochs, pos_km, vel_km_s):
+    columns = (*pos_km.T.tolist(), *vel_km_s.T.tolist())
+    md = MetaDataSection(
+        {
+            **meta,
+            "START_TIME": epochs[0].strftime("%Y-%m-%dT%H:%M:%S.%f"),
+            "STOP_TIME": epochs[-1].strftime("%Y-%m-%dT%H:%M:%S.%f"),
+        }
+    )
+    return EphemerisSegment(md, (tuple(epochs), *map(tuple, columns)))
+
+
+def _write(path, segments):
+    header = HeaderSection(
+        {
+            "CCSDS_OEM_VERS": CURRENT_VERSION,
+            "CREATION_DATE": "2030-01-01T00:00:00",
+            "ORIGINATOR": "test",
+        }
+    )
+    OrbitEphemerisMessage(header, segments).save_as(path, file_format="kvn")
+    return path
+
+
+@pytest.mark.filterwarnings("ignore:ERFA function")  # UTC in 2030: leap seconds unknown
+def test_inertial_frame_with_rotation_model_gives_the_body_fixed_arcs(
+    small_arcs, synthetic, tmp_path
+):
+    """ICRF states in UTC, written with scipy's rotations (independent of hamgrav's), come
+    back as the body-fixed arcs."""
+    units = synthetic.units
+    rot_epoch = Time("2029-12-31T18:00:00", scale="tdb")
+    t0 = Time(EPOCH, scale="tdb")
+    omega = units.omega_rad_s
+    paths = []
+    for traj in range(small_arcs.n_trajectories):
+        segments = []
+        for k in np.flatnonzero(small_arcs.trajectory == traj):
+            seconds = units.from_time(small_arcs.times[k])
+            # UTC epochs to the microsecond; the exact TDB seconds they stand for
+            utc = (t0 + TimeDelta(seconds, format="sec")).utc
+            utc.precision = 6
+            utc_text = [str(t) for t in utc.isot]
+            tdb = Time(utc_text, scale="utc").tdb
+            pos, vel = units.state_from_canonical(small_arcs.states[k])
+            w = (
+                POLE["prime_meridian_deg"]
+                + 360.0 * (tdb - rot_epoch).to_value("s") / synthetic.spin_period_s
+            )
+            angles = np.stack(
+                [
+                    np.full(len(w), 90.0 + POLE["pole_ra_deg"]),
+                    np.full(len(w), 90.0 - POLE["pole_dec_deg"]),
+                    w,
+                ],
+                axis=1,
+            )
+            to_inertial = Rotation.from_euler("ZXZ", angles, degrees=True)  # = M^T
+            inertial_v = vel + omega * np.stack([-pos[:, 1], pos[:, 0], 0 * pos[:, 0]], axis=1)
+            r_i, v_i = to_inertial.apply(pos), to_inertial.apply(inertial_v)
+            epochs = [dt.datetime.strptime(s, "%Y-%m-%dT%H:%M:%S.%f") for s in utc_text]
+            meta = {
+                "OBJECT_NAME": f"orbit-{traj}",
+                "OBJECT_ID": f"TEST-{traj}",
+                "CENTER_NAME": "SYNTHETIC",
+                "REF_FRAME": "ICRF",
+                "TIME_SYSTEM": "UTC",
+            }
+            segments.append(_segment(meta, epochs, r_i / 1e3, v_i / 1e3))
+        paths.append(_write(tmp_path / f"icrf-{traj}.oem", segments))
+
+    rotation = RotationModel(**POLE, spin_period_s=synthetic.spin_period_s, epoch=rot_epoch.isot)
+    back = import_oem(
+        paths, synthetic, rotation=rotation, epoch=EPOCH, sigma_r_m=0.05, sigma_v_m_s=1e-6
+    )
+    assert_same_arcs(back, small_arcs)
+    assert back.config["frames"] == ["inertial"]
+    assert back.config["rotation"]["pole_dec_deg"] == POLE["pole_dec_deg"]
+
+    with pytest.raises(InputError, match="is inertial and body 'synthetic' has no rotation"):
+        import_oem(paths, synthetic, sigma_r_m=0.05, sigma_v_m_s=1e-6)
+
+
+def test_rotation_model_against_hand_cases():
+    # pole at the ICRF north pole with RA -90: M = R3(W); W = W0 + 360 deg per period
+    rot = RotationModel(-90.0, 90.0, 30.0, spin_period_s=100.0)
+    m = rot.matrix(np.array([0.0, 25.0]))
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    np.testing.assert_allclose(m[0], [[c, s, 0], [-s, c, 0], [0, 0, 1]], atol=1e-15)
+    np.testing.assert_allclose(m[1], [[-s, c, 0], [-c, -s, 0], [0, 0, 1]], atol=1e-15)
+    # the body's +z is the pole direction, whatever the pole
+    rot = RotationModel(40.0, 25.0, 0.0, spin_period_s=100.0)
+    pole = np.array(
+        [
+            math.cos(math.radians(25))
+            * np.array([math.cos(math.radians(40)), math.sin(math.radians(40))])
+        ]
+    )
+    pole = np.array([pole[0, 0], pole[0, 1], math.sin(math.radians(25))])
+    np.testing.assert_allclose(rot.matrix(np.array([13.0]))[0] @ pole, [0, 0, 1], atol=1e-15)
+    # a point at rest in the body frame moves inertially at omega x r
+    r_body = np.array([[1.0, 2.0, 3.0]])
+    r_i, v_i = rot.to_inertial(np.array([5.0]), r_body, np.zeros((1, 3)))
+    r_b, p_b, v_rot = rot.to_body(np.array([5.0]), r_i, v_i)
+    np.testing.assert_allclose(r_b, r_body, atol=1e-14)
+    np.testing.assert_allclose(v_rot, 0, atol=1e-15)
+    np.testing.assert_allclose(p_b, rot.omega_rad_s * np.array([[-2.0, 1.0, 0.0]]), atol=1e-15)
+
+
+def _gap_file(path, covariance=False, second=10):
+    base = dt.datetime(2030, 1, 1)
+    steps = [10.0 * k for k in range(10)] + [500.0 + 10.0 * k for k in range(second)]
+    epochs = [base + dt.timedelta(seconds=s) for s in steps]
+    rng = np.random.default_rng(3)
+    pos = 0.5 + 0.01 * rng.normal(size=(len(steps), 3))
+    vel = 1e-5 * rng.normal(size=(len(steps), 3))
+    meta = {
+        "OBJECT_NAME": "probe",
+        "OBJECT_ID": "P-1",
+        "CENTER_NAME": "SYNTHETIC",
+        "REF_FRAME": "BODY_FIXED",
+        "TIME_SYSTEM": "TDB",
+    }
+    _write(path, [_segment(meta, epochs, pos, vel)])
+    if covariance:  # two blocks: position sigma 3 m and 5 m, velocity 1 and 2 mm/s
+        text = path.read_text()
+        blocks = ["COVARIANCE_START"]
+        for k, (sr, sv) in enumerate(((3e-3, 1e-6), (5e-3, 2e-6))):
+            rows = []
+            for i in range(6):
+                rows.append(
+                    " ".join(
+                        f"{(sr**2 if i < 3 else sv**2) if j == i else 0.0:.6e}"
+                        for j in range(i + 1)
+                    )
+                )
+            blocks += [f"EPOCH = 2030-01-01T00:0{k}:00.000000", "COV_REF_FRAME = RTN", *rows]
+        blocks.append("COVARIANCE_STOP")
+        path.write_text(text.rstrip("\n") + "\n" + "\n".join(blocks) + "\n")
+    return path
+
+
+def test_cut_at_gaps_and_into_samples(synthetic, tmp_path):
+    path = _gap_file(tmp_path / "gap.oem")
+    arcs = import_oem([path], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+    assert arcs.times.shape == (2, 10)  # split at the 420 s gap
+    assert arcs.trajectory_kind == ("tracked",) and arcs.times[0, 0] == 0.0
+    seconds = synthetic.units.from_time(arcs.times)
+    # astropy keeps epochs to about 1e-11 s
+    np.testing.assert_allclose(np.diff(seconds, axis=1), 10.0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(seconds[1, 0], 500.0, rtol=0, atol=1e-9)
+    cut = import_oem([path], synthetic, samples=4, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+    assert cut.times.shape == (4, 4) and cut.config["dropped_samples"] == 4
+    np.testing.assert_array_equal(cut.states[1], arcs.states[0, 4:8])
+    # a larger allowed gap keeps the segment whole
+    whole = import_oem([path], synthetic, max_gap_s=600.0, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+    assert whole.times.shape == (1, 20)
+
+
+def test_noise_from_covariance_blocks(synthetic, tmp_path):
+    arcs = import_oem([_gap_file(tmp_path / "cov.oem", covariance=True)], synthetic)
+    assert arcs.config["noise_from"] == "covariance"
+    assert math.isclose(arcs.sigma_r_m, math.sqrt((9 + 25) / 2), rel_tol=1e-12)
+    assert math.isclose(arcs.sigma_v_m_s, math.sqrt((1 + 4) / 2) * 1e-3, rel_tol=1e-12)
+
+
+def test_errors_name_the_problem_and_the_fix(synthetic, exported, tmp_path):
+    path = _gap_file(tmp_path / "gap.oem")
+    with pytest.raises(InputError, match="give no noise level .* pass --sigma-r"):
+        import_oem([path], synthetic)
+    uneven = _gap_file(tmp_path / "uneven.oem", second=4)
+    with pytest.raises(InputError, match="hold 4 to 10 samples; pass --samples M"):
+        import_oem([uneven], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
+    with pytest.raises(InputError, match="OEM file not found"):
+        import_oem([tmp_path / "none.oem"], synthetic)
+    bad = tmp_path / "bad.oem"
+    bad.write_text("CCSDS_OEM_VERS = 2.0\nnonsense\n")
+    with pytest.raises(DatasetError, match="bad.oem is not a readable CCSDS OEM"):
+        import_oem([bad], synthetic)
+    other = tmp_path / "other.oem"
+    other.write_text(path.read_text().replace("REF_FRAME = BODY_FIXED", "REF_FRAME = RTN"))
+    with pytest.raises(InputError, match="REF_FRAME 'RTN' is neither body-fixed"):
+        import_oem([other], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
+    moon = tmp_path / "moon.oem"
+    moon.write_text(path.read_text().replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = MOON"))
+    with pytest.raises(InputError, match="CENTER_NAME 'MOON' is not body 'synthetic'"):
+        import_oem([moon], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
+    with pytest.raises(InputError, match="--samples must be at least 2"):
+        import_oem([path], synthetic, samples=1)
