@@ -58,9 +58,11 @@ TERMS = ("network", "sh", "none")
 #: 1e-8 of the largest entry), returning the best validation iterate. A floor of 1e-6 left one
 #: draw (seed 4) at r1.2 0.36 and median miss 12.2 m, 1e-8 brings it to 0.12 and 4.9 m;
 #: stopping on a validation plateau, also tried, stopped some draws early. Single fits from
-#: different initialisations of the same arcs differ by up to 2.6x in r1.2 and the validation
-#: cost does not tell the better one (bench/network_members.py): the members' mean is kept
-#: instead of the best-validation member.
+#: different initialisations of the same arcs (with the harmonic penalty) differ by up to 3.2x
+#: in r1.2 (bench/network_members.py, seeds 0-2: 0.062-0.071, 0.055-0.116, 0.072-0.229); the
+#: members' mean guards against the bad member (ensemble r1.2 0.065, 0.066, 0.108). The
+#: best-validation member did as well on these three draws (0.062, 0.055, 0.075) at the same
+#: cost; the mean is kept until more draws tell them apart.
 NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=30, rtol=1e-9, lambda0=1e-2, damping_floor=1e-8)
 #: Weight of network-best's harmonic penalty (:mod:`hamgrav.fit.harmonic`). On the eight
 #: 112-arc Itokawa descent draws it lowers the median miss from 4.2 to 3.5 m and the worst
