@@ -66,7 +66,7 @@ TERMS = ("network", "sh", "none")
 NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=30, rtol=1e-9, lambda0=1e-2, damping_floor=1e-8)
 #: Weight of network-best's harmonic penalty (:mod:`hamgrav.fit.harmonic`). On the eight
 #: 112-arc Itokawa descent draws it lowers the median miss from 4.2 to 3.5 m and the worst
-#: draw's from 7.9 to 5.7 m (results/descent-itokawa-x8-no-harmonic against -x8); on 67P it
+#: draw's from 7.9 to 5.7 m (results/descent-itokawa-x8-no-harmonic against descent-itokawa-x8); on 67P it
 #: keeps the network from bending below the arcs (deep-region error 1.13 -> 0.47, seed 0).
 NETWORK_BEST_HARMONIC = 1e-5
 #: Warm-started continual stages start near the optimum: at most 10 iterations per member,
