@@ -433,6 +433,7 @@ class GravityEstimator:
             prior=prior_info,
             solver=solver_info,
             history={k: [float(x) for x in v] for k, v in result.history.items()},
+            training={"arcs_sha256": arcs.digest(), "truth_sha256": arcs.truth_digest()},
         )
         return self
 
