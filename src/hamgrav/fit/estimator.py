@@ -13,6 +13,7 @@ ends with the outcome "no improvement".
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
@@ -25,7 +26,7 @@ from ..core.arcs import Arcs
 from ..core.model import Model, evaluate_field
 from ..core.problem import ArcProblem
 from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics, Term
-from ..errors import InputError
+from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits
 from .adam import Adam
 from .base import Outcome, Solver, SolveResult
@@ -331,6 +332,7 @@ class GravityEstimator:
             train = np.setdiff1d(np.arange(arcs.n_arcs), validation)
         else:
             train, validation = self.split(arcs)
+        _warn_if_underdetermined(problem, ensemble, arcs, train)
         solver = solver or (self.warm_solver if warm else None) or self.make_solver()
         kaula_scores = None
         if problem.n_params == 0:
@@ -536,6 +538,23 @@ class GravityEstimator:
         """Potential (n,) and acceleration (n, 3) [canonical] of the fitted model's
         ``which`` part ("learnable", "known" or "total") at canonical ``points`` (n, 3)."""
         return evaluate_field(self.model_, self.params_, points, which)
+
+
+def _warn_if_underdetermined(problem: ArcProblem, ensemble: bool, arcs: Arcs, train) -> None:
+    """Warn when one fit (one member of an ensemble) has more parameters than the training
+    arcs have observed scalars (6 per sample after the first, which anchors the arc)."""
+    n_train = arcs.n_arcs if train is None else len(train)
+    observations = n_train * (arcs.samples_per_arc - 1) * 6
+    term = problem.model.learnable
+    n = problem.n_params - (term.n_params - term.member_params if ensemble else 0)
+    if n > observations:
+        warnings.warn(
+            f"{n} parameters{' per network' if ensemble else ''} but only {observations} "
+            f"observed scalars in the {n_train} training arcs: the fit is underdetermined "
+            "and its field is not constrained by the data; use more arcs or a smaller model",
+            HamgravWarning,
+            stacklevel=3,
+        )
 
 
 def _nothing_to_fit(problem: ArcProblem) -> SolveResult:

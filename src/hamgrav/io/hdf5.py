@@ -134,7 +134,7 @@ def open_for_reading(path: str | os.PathLike, kind: str, fix: str, error=Dataset
     not HDF5 raises ``error`` naming ``path``, what was expected (``kind``) and ``fix``."""
     path = Path(path)
     if path.is_dir():
-        raise error(f"{path} is a folder, not a {kind}; pass the file itself")
+        raise error(f"{path} is a folder; pass the {kind} itself")
     if not path.is_file():
         raise error(f"{kind} not found: {path}")
     try:

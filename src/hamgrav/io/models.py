@@ -372,11 +372,24 @@ def _check_identity(path: Path, stored: dict | None, state: dict, expect: dict) 
             stacklevel=3,
         )
         return
-    expect = _plain_json(expect)
-    differ = [k for k in sorted(set(expect) | set(stored)) if stored.get(k) != expect.get(k)]
+    have, want = _flat(stored), _flat(_plain_json(expect))
+    differ = [k for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
+    if have.get("solver") != want.get("solver"):  # then every setting differs: name the solver
+        differ = [k for k in differ if not k.startswith("solver_settings.")]
     if differ:
-        what = "; ".join(f"{k} {stored.get(k)!r} (this command: {expect.get(k)!r})" for k in differ)
+        what = "; ".join(f"{k} {have.get(k)!r} (this command: {want.get(k)!r})" for k in differ)
         raise ModelFileError(f"checkpoint {path} belongs to another fit: {what}; {fix}")
+
+
+def _flat(identity: dict) -> dict:
+    """Nested settings as dotted keys, so that a mismatch names the one setting that differs."""
+    out = {}
+    for key, value in identity.items():
+        if isinstance(value, dict):
+            out.update({f"{key}.{k}": v for k, v in _flat(value).items()})
+        else:
+            out[key] = value
+    return out
 
 
 def load_checkpoint(path: str | os.PathLike, expect: dict | None = None) -> tuple[np.ndarray, dict]:
