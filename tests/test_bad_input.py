@@ -214,7 +214,7 @@ def test_outputs_checked_before_the_computation(files, tmp_path, kind):
         (["--hidden", "0"], "--hidden must be an integer >= 1, got 0"),
         (["--learning-rate", "-0.1"], "--learning-rate must be a finite number > 0"),
         (["--learning-rate", "inf"], "--learning-rate must be a finite number > 0, got inf"),
-        (["--model", "sh:4", "--kaula", "-1e-6"], "--kaula (a weight ALPHA >= 0, or 'scan')"),
+        (["--model", "sh:4", "--kaula", "-1e-6"], "--kaula (one weight ALPHA >= 0, or 'scan')"),
         (["--model", "sh:4", "--kaula", "nan"], "must be a finite number >= 0, got nan"),
         (["--seed", "-1"], "--seed must be an integer >= 0"),
         (["--solver", "sgd"], "--solver must be 'adam' or 'lm'"),

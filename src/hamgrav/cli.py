@@ -171,9 +171,15 @@ def _floats(text: str, name: str, low: float = -math.inf, *, open_low: bool = Fa
 def _ints(text: str, name: str, low: int = 1) -> list[int]:
     """The comma-separated integers >= ``low`` of option ``name`` (at least one)."""
     words = [w.strip() for w in text.split(",") if w.strip()]
-    if not words or not all(w.lstrip("+-").isdigit() for w in words):
-        raise InputError(f"{name} must be comma-separated integers >= {low}, got {text!r}")
-    return [_number(int(w), name, low, integer=True) for w in words]
+    try:
+        if not words:
+            raise ValueError
+        values = [int(w) for w in words]
+    except ValueError:
+        raise InputError(
+            f"{name} must be comma-separated integers >= {low}, got {text!r}"
+        ) from None
+    return [_number(v, name, low, integer=True) for v in values]
 
 
 def _output(path: Path | None, name: str = "-o") -> Path | None:
@@ -297,7 +303,7 @@ def _model_option(model: str) -> dict:
 
     if model in PRESETS:
         return preset(model)
-    if model.startswith("sh:") and model[3:].isdigit() and 2 <= int(model[3:]) <= MAX_SH_DEGREE:
+    if model.startswith("sh:") and model[3:].isdecimal() and 2 <= int(model[3:]) <= MAX_SH_DEGREE:
         return {"term": "sh", "degree": int(model[3:])}
     raise InputError(
         f"--model must be one of {', '.join(PRESETS)} or 'sh:L' with 2 <= L <= "
@@ -389,7 +395,11 @@ def fit(
         if kaula == "scan":
             kaula_value = "scan"
         else:
-            (kaula_value,) = _floats(kaula, "--kaula (a weight ALPHA >= 0, or 'scan')", 0.0)
+            name = "--kaula (one weight ALPHA >= 0, or 'scan')"
+            values = _floats(kaula, name, 0.0)
+            if len(values) != 1:
+                raise InputError(f"{name} takes one value, got {kaula!r}")
+            kaula_value = values[0]
         if term != "sh":
             raise InputError("--kaula applies to spherical-harmonics models (--model sh:L)")
     _number(steps, "--steps", 1, integer=True)

@@ -176,7 +176,7 @@ def _read_mascon_csv(path) -> np.ndarray:
 
     try:
         with gzip.open(path, "rt") as fh:
-            data = np.loadtxt(fh, delimiter=",", skiprows=1)
+            data = np.loadtxt(fh, delimiter=",", skiprows=1, ndmin=2)
     except (OSError, ValueError, EOFError, UnicodeDecodeError) as exc:
         raise BodyDataError(f"cannot read mascon file {path}: {exc}; restore it") from None
     if data.ndim != 2 or data.shape[1] != 4 or len(data) < 1:
