@@ -1,12 +1,18 @@
-"""What every hamgrav HDF5 file shares: checksummed datasets, a digest of the whole content,
-and reading with one-line errors that name the file.
+"""What every hamgrav HDF5 file shares: a checksum of the whole file, verified before HDF5
+reads a byte of it, checksummed datasets, and reading with one-line errors naming the file.
 
-Integrity has two layers. Every non-empty dataset is written with the fletcher32 filter, so
-HDF5 itself refuses a dataset whose bytes changed. Attributes have no such filter, so the
-root attribute ``content_sha256`` holds a SHA-256 of every attribute and dataset in the file
-(names, dtypes, shapes and bytes, in sorted order); a reader recomputes it. Files written
-before the digest existed have no ``content_sha256``: they are read with a
-:class:`~hamgrav.errors.HamgravWarning` that their integrity cannot be checked.
+Integrity has two layers. The file starts with a 512-byte HDF5 user block (bytes HDF5 itself
+ignores) holding ``hamgrav-sha256 <hex>``: the SHA-256 of every byte after the user block.
+A reader verifies it before the file is handed to HDF5, because HDF5 trusts its own metadata:
+a single flipped bit in a file's global heap made the HDF5 library loop forever (found by
+``tests/test_fuzz.py``). A truncated, damaged or edited file is refused with one line.
+Every non-empty dataset is also written with the fletcher32 filter, so that HDF5 refuses a
+damaged dataset of a file whose user block was lost.
+
+Files written before hamgrav wrote the user block (the HDF5 signature at byte 0) are read
+with a :class:`~hamgrav.errors.HamgravWarning` that their integrity cannot be checked; every
+value is still checked by its reader. A file edited in place (with h5py, say) no longer
+matches its checksum and is refused: write it again with hamgrav instead.
 """
 
 from __future__ import annotations
@@ -23,17 +29,18 @@ import numpy as np
 from ..errors import DatasetError, HamgravWarning
 
 __all__ = [
-    "DIGEST_ATTR",
     "READ_ERRORS",
-    "content_digest",
+    "USERBLOCK",
+    "create",
     "open_for_reading",
     "seal",
-    "verify",
     "write_array",
 ]
 
-#: Root attribute holding the SHA-256 of the file's content (see the module docstring).
-DIGEST_ATTR = "content_sha256"
+#: Size of the user block holding the file checksum (the smallest HDF5 allows).
+USERBLOCK = 512
+_MAGIC = b"hamgrav-sha256 "
+_CHUNK = 1 << 20
 
 #: What h5py, numpy and json raise on a malformed file. A reader turns these into one-line
 #: :class:`~hamgrav.errors.DatasetError` messages; they never signal a bug of the reader
@@ -47,13 +54,19 @@ READ_ERRORS = (
     IndexError,
     RuntimeError,
     ArithmeticError,
+    MemoryError,
 )
+
+
+def create(path: str | os.PathLike) -> h5py.File:
+    """A new HDF5 file at ``path`` (open for writing) with room for the checksum; call
+    :func:`seal` on ``path`` once the file is closed."""
+    return h5py.File(path, "w", userblock_size=USERBLOCK)
 
 
 def write_array(group: h5py.Group, name: str, data) -> None:
     """Write ``data`` as dataset ``name`` of ``group``, with the fletcher32 checksum filter
-    (HDF5 cannot filter scalar or empty datasets: those are written plain, and the content
-    digest still covers them)."""
+    (HDF5 cannot filter scalar or empty datasets: those are written plain)."""
     arr = np.asarray(data)
     if arr.ndim and arr.size:
         group.create_dataset(name, data=arr, fletcher32=True)
@@ -61,82 +74,70 @@ def write_array(group: h5py.Group, name: str, data) -> None:
         group.create_dataset(name, data=arr)
 
 
-def _canonical(value) -> bytes:
-    """Bytes of an attribute or dataset value that are the same after an HDF5 round trip
-    (Python ints and floats are stored as 64-bit numbers, strings as UTF-8)."""
-    if isinstance(value, bytes):
-        return b"s" + value
-    if isinstance(value, str):
-        return b"s" + value.encode("utf-8")
-    arr = np.asarray(value)
-    if arr.dtype.kind in "SUO":
-        items = [v.decode() if isinstance(v, bytes) else str(v) for v in arr.ravel().tolist()]
-        return b"S" + repr((arr.shape, items)).encode("utf-8")
-    kind = {"b": np.uint8, "i": np.int64, "u": np.uint64, "f": np.float64, "c": np.complex128}
-    if arr.dtype.kind not in kind:
-        raise TypeError(f"cannot digest values of dtype {arr.dtype}")
-    canon = np.ascontiguousarray(arr, dtype=kind[arr.dtype.kind])
-    return arr.dtype.kind.encode() + repr(arr.shape).encode() + canon.tobytes()
-
-
-def content_digest(f: h5py.File) -> str:
-    """SHA-256 (hex) of every attribute (except :data:`DIGEST_ATTR`) and dataset of ``f``."""
+def _body_digest(fh) -> str:
+    """SHA-256 (hex) of the bytes after the user block of the open binary file ``fh``."""
+    fh.seek(USERBLOCK)
     h = hashlib.sha256()
-
-    def add(name: str, obj) -> None:
-        for key in sorted(obj.attrs):
-            if obj.name == "/" and key == DIGEST_ATTR:
-                continue
-            h.update(f"attr {name}:{key}\0".encode())
-            h.update(_canonical(obj.attrs[key]))
-        if isinstance(obj, h5py.Dataset):
-            h.update(f"data {name}\0".encode())
-            h.update(_canonical(obj[()]))
-
-    add("/", f)
-    names: list[str] = []
-    f.visit(names.append)
-    for name in sorted(names):
-        add(name, f[name])
+    while chunk := fh.read(_CHUNK):
+        h.update(chunk)
     return h.hexdigest()
 
 
-def seal(f: h5py.File) -> None:
-    """Store the content digest of ``f`` (open for writing, complete) in its root attribute."""
-    f.flush()
-    f.attrs[DIGEST_ATTR] = content_digest(f)
+def seal(path: str | os.PathLike) -> None:
+    """Write the checksum of the closed file at ``path`` (made by :func:`create`) into its
+    user block."""
+    with open(path, "r+b") as fh:
+        stamp = _MAGIC + _body_digest(fh).encode() + b"\n"
+        fh.seek(0)
+        fh.write(stamp.ljust(USERBLOCK, b"\0"))
 
 
-def verify(f: h5py.File, path: Path, kind: str, fix: str) -> None:
-    """Check the content digest of ``f`` (read from ``path``): a mismatch raises
-    :class:`~hamgrav.errors.DatasetError`; a file without a digest (written before hamgrav
-    stored one) is accepted with a :class:`~hamgrav.errors.HamgravWarning`."""
-    stored = f.attrs.get(DIGEST_ATTR)
-    if stored is None:
-        warnings.warn(
-            f"{path} has no content checksum (written by an older hamgrav): its integrity "
-            f"cannot be verified; {fix} to add one",
-            HamgravWarning,
-            stacklevel=3,
+_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _check_file(path: Path, kind: str, fix: str, error) -> None:
+    """Verify the user-block checksum of ``path`` before HDF5 parses it. A file without a
+    user block (HDF5 signature at byte 0: written by an older hamgrav) is accepted with a
+    warning; a file with one whose stamp is unreadable is damaged."""
+    damaged = (
+        f"{path} is truncated, corrupted or was edited: its bytes do not match the checksum "
+        f"hamgrav wrote with it; {fix}"
+    )
+    with open(path, "rb") as fh:
+        head = fh.read(USERBLOCK + len(_SIGNATURE))
+        if head.startswith(_MAGIC):
+            stored = head[len(_MAGIC) : len(_MAGIC) + 64].decode("ascii", "replace")
+            if stored != _body_digest(fh):
+                raise error(damaged)
+            return
+    if head[USERBLOCK:] == _SIGNATURE:
+        raise error(damaged)
+    if not head.startswith(_SIGNATURE):
+        raise error(
+            f"{path} is truncated, corrupted or not a hamgrav {kind} (not an HDF5 file); {fix}"
         )
-        return
-    stored = stored.decode() if isinstance(stored, bytes) else str(stored)
-    if stored != content_digest(f):
-        raise DatasetError(
-            f"{path} is corrupted: its content does not match the checksum written with it "
-            f"(a changed or damaged {kind}); {fix}"
-        )
+    warnings.warn(
+        f"{path} has no hamgrav checksum (written by an older hamgrav): its integrity "
+        f"cannot be verified; {fix} to add one",
+        HamgravWarning,
+        stacklevel=4,
+    )
 
 
 @contextmanager
 def open_for_reading(path: str | os.PathLike, kind: str, fix: str, error=DatasetError):
-    """Open the HDF5 file at ``path`` for reading; a missing path, a folder or a file that is
-    not HDF5 raises ``error`` naming ``path``, what was expected (``kind``) and ``fix``."""
+    """Open the HDF5 file at ``path`` for reading once its checksum is verified; a missing
+    path, a folder, a damaged file or one that is not HDF5 raises ``error`` naming ``path``,
+    what was expected (``kind``) and ``fix``."""
     path = Path(path)
     if path.is_dir():
         raise error(f"{path} is a folder; pass the {kind} itself")
     if not path.is_file():
         raise error(f"{kind} not found: {path}")
+    try:
+        _check_file(path, kind, fix, error)
+    except OSError as exc:
+        raise error(f"{path} cannot be read ({exc.strerror}); check its permissions") from None
     try:
         f = h5py.File(path, "r")
     except OSError as exc:

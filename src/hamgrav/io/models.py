@@ -8,14 +8,14 @@ period / 2 pi, unless the name says otherwise)::
                           structure_key, units,
                           model (JSON of Model.describe(), known mascons included),
                           prior, solver, stages, training (JSON: arcs_file, arcs_sha256,
-                          truth_sha256 of the arcs fitted to), content_sha256
+                          truth_sha256 of the arcs fitted to)
     /params        (n,)  learnable parameters, then (estimate_trajectory_params) each
                          trajectory's per-trajectory parameters, trajectory-major
     /history       attrs: names (JSON list, the order of the entries),
                           json (JSON object of the entries that are not arrays of numbers)
     /history/<name>      float array for each numeric entry
 
-Datasets carry fletcher32 checksums and ``content_sha256`` a digest of the whole file (see
+The file's checksum is in its HDF5 user block and datasets carry fletcher32 checksums (see
 :mod:`hamgrav.io.hdf5`). ``training`` is absent in files written before hamgrav 0.2.1.
 
 A checkpoint is an ``.npz`` archive: ``params``, ``header`` (one JSON string: format, the
@@ -43,7 +43,7 @@ from ..core.model import Model
 from ..errors import DatasetError, HamgravWarning
 from ..fit.fitted import FittedModel
 from .files import atomic_path
-from .hdf5 import READ_ERRORS, open_for_reading, seal, verify, write_array
+from .hdf5 import READ_ERRORS, create, open_for_reading, seal, write_array
 
 __all__ = [
     "ModelFileError",
@@ -151,11 +151,12 @@ def save_model(fitted: FittedModel, path: str | os.PathLike) -> Path:
     }
     if not np.all(np.isfinite(params)):
         raise ValueError("cannot save the model: its parameters are not all finite")
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs.update(attrs)
-        write_array(f, "params", params)
-        _write_history(f.create_group("history"), fitted.history)
-        seal(f)
+    with atomic_path(path) as tmp:
+        with create(tmp) as f:
+            f.attrs.update(attrs)
+            write_array(f, "params", params)
+            _write_history(f.create_group("history"), fitted.history)
+        seal(tmp)
     return path
 
 
@@ -252,8 +253,6 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
         training=training,
         **dicts,
     )
-    verify(f, path, "model file", _FIX)
-    # values: after the checksum, so that a damaged file is reported as damaged
     bad = ~np.isfinite(params)
     if bad.any():
         raise ModelFileError(
