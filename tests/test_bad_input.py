@@ -323,3 +323,22 @@ def test_interrupt_before_the_first_checkpoint_says_so(files, tmp_path, monkeypa
     monkeypatch.setattr("hamgrav.io.arcs.load_arcs", interrupted)
     result = runner.invoke(app, ["fit", str(files[0]), "--model", "sh:2", "-o", str(out)])
     assert result.exit_code == 130 and "interrupted; no output was written" in result.output
+
+
+def test_ctrl_c_while_starting_is_held_and_reported(capsys):
+    """A Ctrl-C while the libraries load is held (some libraries swallow KeyboardInterrupt
+    in their imports) and ends the command in one line with status 130."""
+    import signal
+
+    from hamgrav.cli import _DeferInterrupt
+
+    with pytest.raises(SystemExit) as info, _DeferInterrupt():
+        try:  # what a library importing its optional dependencies does
+            os.kill(os.getpid(), signal.SIGINT)
+        except BaseException:
+            pass
+    assert info.value.code == 130
+    assert capsys.readouterr().err == "interrupted while starting; nothing was done\n"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with _DeferInterrupt():  # no Ctrl-C: nothing happens
+        pass

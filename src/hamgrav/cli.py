@@ -10,28 +10,62 @@ shows its traceback instead. Ctrl-C exits with status 130 and says what was kept
 
 from __future__ import annotations
 
-import functools
-import inspect
-import json
-import math
-import os
+import signal
 import sys
-import warnings
-from dataclasses import replace
-from pathlib import Path
-from typing import Annotated
+import threading
 
-import click
-import typer
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
-from .bodies.catalogue import load_body
-from .bodies.interiors import DEFAULT_TRUTH_MASCONS
-from .errors import HamgravError, HamgravWarning, InputError
-from .io.files import check_output
+class _DeferInterrupt:
+    """Hold Ctrl-C while the libraries load (a second or two), then exit with one line.
+
+    A KeyboardInterrupt raised inside an import is not reliably seen: some libraries import
+    their optional dependencies under ``except BaseException`` and swallow it, so a Ctrl-C
+    at the wrong moment was simply lost and the command ran on. Only the main thread can
+    install the handler; an ignored SIGINT (a background job) stays ignored.
+    """
+
+    def __enter__(self):
+        self.hit = False
+        self.previous = None
+        main = threading.current_thread() is threading.main_thread()
+        if main and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self.previous = signal.signal(signal.SIGINT, self._hold)
+        return self
+
+    def _hold(self, signum, frame):
+        self.hit = True
+
+    def __exit__(self, *exc):
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+        if self.hit or (exc[0] is not None and issubclass(exc[0], KeyboardInterrupt)):
+            sys.stderr.write("interrupted while starting; nothing was done\n")
+            raise SystemExit(130)
+        return False
+
+
+with _DeferInterrupt():
+    import functools
+    import inspect
+    import json
+    import math
+    import os
+    import warnings
+    from dataclasses import replace
+    from pathlib import Path
+    from typing import Annotated
+
+    import click
+    import typer
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    from .bodies.catalogue import load_body
+    from .bodies.interiors import DEFAULT_TRUTH_MASCONS
+    from .errors import HamgravError, HamgravWarning, InputError
+    from .io.files import check_output
 
 app = typer.Typer(
     help="Learn small-body gravity fields from tracking arcs.",
@@ -436,7 +470,7 @@ def fit(
     if init is not None:
         structure = estimator.build_model(arcs)[0].key()
         previous = load_model(init, expect_body=arcs.body_name, expect_structure=structure)
-        if tuple(previous.body_origin_m) != tuple(arcs.body_origin_m):
+        if not _same_origin(previous.body_origin_m, arcs.body_origin_m):
             raise InputError(
                 f"--init {init} was fitted in a frame with origin {previous.body_origin_m} m, "
                 f"the arcs {arcs_file} are in one with origin {arcs.body_origin_m} m; "
@@ -518,6 +552,13 @@ def fit(
             raise typer.Exit(code=3)
 
 
+def _same_origin(a, b) -> bool:
+    """Whether two frame origins [m] are the same frame: within a micrometre (truths of one
+    body drawn with other seeds differ by round-off in their centre of mass; their own
+    digests tell them apart)."""
+    return math.dist(a, b) <= 1e-6
+
+
 def _digest(values) -> str:
     """SHA-256 (hex) of a parameter vector's float64 bytes."""
     import hashlib
@@ -547,7 +588,7 @@ def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
             f"arcs {source} are of body {arcs.body_name!r}, model {model_file} of "
             f"{fitted.body_name!r}; pass the arcs of this model's campaign with --arcs"
         )
-    if tuple(arcs.body_origin_m) != tuple(fitted.body_origin_m):
+    if not _same_origin(arcs.body_origin_m, fitted.body_origin_m):
         raise InputError(
             f"arcs {source} are in a frame with origin {arcs.body_origin_m} m, model "
             f"{model_file} in one with origin {fitted.body_origin_m} m (another campaign); "
@@ -809,7 +850,8 @@ def _register_experiments() -> None:
         _command(experiment_app, name)(_experiment_command(experiment))
 
 
-_register_experiments()
+with _DeferInterrupt():  # imports the experiments (and with them the numerical core)
+    _register_experiments()
 
 
 @_command(app)

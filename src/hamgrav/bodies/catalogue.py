@@ -192,7 +192,9 @@ def _load_mesh(path: Path) -> trimesh.Trimesh:
         raise BodyDataError(f"mesh {path} has non-finite vertex coordinates; the file is malformed")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise BodyDataError(f"mesh {path} has faces that refer to missing vertices; malformed")
-    if not mesh.is_watertight or mesh.volume <= 0:
+    with np.errstate(all="ignore"):  # a degenerate mesh is refused here, not warned about
+        closed = mesh.is_watertight and mesh.volume > 0
+    if not closed:
         raise BodyDataError(
             f"mesh {path} is not a closed, outward-wound surface (watertight="
             f"{mesh.is_watertight}, volume={mesh.volume:.4g}); hamgrav needs a closed mesh"

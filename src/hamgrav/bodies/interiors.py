@@ -22,6 +22,7 @@ cannot represent.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -175,7 +176,9 @@ def _read_mascon_csv(path) -> np.ndarray:
     import gzip
 
     try:
-        with gzip.open(path, "rt") as fh:
+        # an empty file is refused below, without numpy's own warning about it
+        with gzip.open(path, "rt") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
             data = np.loadtxt(fh, delimiter=",", skiprows=1, ndmin=2)
     except (OSError, ValueError, EOFError, UnicodeDecodeError) as exc:
         raise BodyDataError(f"cannot read mascon file {path}: {exc}; restore it") from None

@@ -228,7 +228,7 @@ def load_arcs(path: str | os.PathLike) -> Arcs:
     and the fix."""
     path = Path(path)
     try:
-        with open_for_reading(path, "arcs file", _FIX) as f:
+        with open_for_reading(path, "arcs file", _FIX, fmt=ARCS_FORMAT) as f:
             return _read(f, path)
     except DatasetError as exc:
         text = str(exc)

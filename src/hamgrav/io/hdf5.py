@@ -95,10 +95,10 @@ def seal(path: str | os.PathLike) -> None:
 _SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
-def _check_file(path: Path, kind: str, fix: str, error) -> None:
-    """Verify the user-block checksum of ``path`` before HDF5 parses it. A file without a
-    user block (HDF5 signature at byte 0: written by an older hamgrav) is accepted with a
-    warning; a file with one whose stamp is unreadable is damaged."""
+def _check_file(path: Path, kind: str, fix: str, error) -> bool:
+    """Verify the user-block checksum of ``path`` before HDF5 parses it: True when it holds
+    one and it matches, False for a file without a user block (HDF5 signature at byte 0:
+    written by an older hamgrav); a file with one whose stamp is unreadable is damaged."""
     damaged = (
         f"{path} is truncated, corrupted or was edited: its bytes do not match the checksum "
         f"hamgrav wrote with it; {fix}"
@@ -109,33 +109,32 @@ def _check_file(path: Path, kind: str, fix: str, error) -> None:
             stored = head[len(_MAGIC) : len(_MAGIC) + 64].decode("ascii", "replace")
             if stored != _body_digest(fh):
                 raise error(damaged)
-            return
+            return True
     if head[USERBLOCK:] == _SIGNATURE:
         raise error(damaged)
     if not head.startswith(_SIGNATURE):
         raise error(
             f"{path} is truncated, corrupted or not a hamgrav {kind} (not an HDF5 file); {fix}"
         )
-    warnings.warn(
-        f"{path} has no hamgrav checksum (written by an older hamgrav): its integrity "
-        f"cannot be verified; {fix} to add one",
-        HamgravWarning,
-        stacklevel=4,
-    )
+    return False
 
 
 @contextmanager
-def open_for_reading(path: str | os.PathLike, kind: str, fix: str, error=DatasetError):
+def open_for_reading(
+    path: str | os.PathLike, kind: str, fix: str, error=DatasetError, fmt: str | None = None
+):
     """Open the HDF5 file at ``path`` for reading once its checksum is verified; a missing
     path, a folder, a damaged file or one that is not HDF5 raises ``error`` naming ``path``,
-    what was expected (``kind``) and ``fix``."""
+    what was expected (``kind``) and ``fix``. A file without a checksum whose ``format``
+    attribute is ``fmt`` (a hamgrav file of an older version) is read with a
+    :class:`~hamgrav.errors.HamgravWarning`; other files are left to the reader's refusal."""
     path = Path(path)
     if path.is_dir():
         raise error(f"{path} is a folder; pass the {kind} itself")
     if not path.is_file():
         raise error(f"{kind} not found: {path}")
     try:
-        _check_file(path, kind, fix, error)
+        sealed = _check_file(path, kind, fix, error)
     except OSError as exc:
         raise error(f"{path} cannot be read ({exc.strerror}); check its permissions") from None
     try:
@@ -146,6 +145,15 @@ def open_for_reading(path: str | os.PathLike, kind: str, fix: str, error=Dataset
             f"{exc}); {fix}"
         ) from None
     try:
+        found = f.attrs.get("format")
+        found = found.decode() if isinstance(found, bytes) else found
+        if not sealed and (fmt is None or found == fmt):
+            warnings.warn(
+                f"{path} has no hamgrav checksum (written by an older hamgrav): its "
+                f"integrity cannot be verified; {fix} to add one",
+                HamgravWarning,
+                stacklevel=3,
+            )
         yield f
     finally:
         f.close()

@@ -276,7 +276,7 @@ def load_model(
     """
     path = Path(path)
     try:
-        with open_for_reading(path, "model file", _FIX, ModelFileError) as f:
+        with open_for_reading(path, "model file", _FIX, ModelFileError, MODEL_FORMAT) as f:
             fitted = _read_model(f, path)
     except DatasetError as exc:
         text = str(exc)
