@@ -66,6 +66,9 @@ class CampaignConfig(ExperimentConfig):
         for name in ("radius_rb", "inclination_deg"):
             if len(getattr(self, name)) != 2:
                 raise InputError(f"{name} must be a range of two numbers (low, high)")
+        # the campaign file's checks (orbit radii and count, tracking, truth mascons) apply
+        # to an experiment's campaign too, before anything runs
+        Campaign.from_dict(self.campaign(0).as_dict(), source="campaign")
 
     def campaign(self, seed: int) -> Campaign:
         """The campaign this config describes, seeded."""
