@@ -322,7 +322,7 @@ def test_interrupt_before_the_first_checkpoint_says_so(files, tmp_path, monkeypa
     assert not checkpoint_path_for(out).exists() and "Traceback" not in result.output
     monkeypatch.setattr("hamgrav.io.arcs.load_arcs", interrupted)
     result = runner.invoke(app, ["fit", str(files[0]), "--model", "sh:2", "-o", str(out)])
-    assert result.exit_code == 130 and "interrupted; no output was written" in result.output
+    assert result.exit_code == 130 and "interrupted; no file is left half-written" in result.output
 
 
 def test_ctrl_c_while_starting_is_held_and_reported(capsys):

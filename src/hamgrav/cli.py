@@ -128,7 +128,12 @@ def _command(typer_app: typer.Typer, *args, **kwargs):
                 except HamgravError as exc:
                     _fail(exc)
                 except KeyboardInterrupt:
-                    err.print("interrupted; no output was written", highlight=False)
+                    err.print(
+                        "interrupted; no file is left half-written (hamgrav writes each file "
+                        "whole or not at all)",
+                        highlight=False,
+                        soft_wrap=True,
+                    )
                     raise typer.Exit(code=130) from None
                 except (
                     typer.Exit,
