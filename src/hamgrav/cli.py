@@ -522,12 +522,14 @@ def fit(
                 f"interrupted; the last checkpoint is kept: resume with the same command "
                 f"and --resume ({ckpt})",
                 highlight=False,
+                soft_wrap=True,
             )
         else:
             err.print(
                 "interrupted before the first checkpoint; nothing was saved: run the same "
                 "command again",
                 highlight=False,
+                soft_wrap=True,
             )
         raise typer.Exit(code=130) from None
     fitted = estimator.fitted_
@@ -552,6 +554,7 @@ def fit(
             "[bold yellow]warning:[/] the fit does not clearly improve on no correction "
             f"(cost ratio {diag['relative_cost']:.3g}); do not use this model",
             highlight=False,
+            soft_wrap=True,
         )
         if strict:
             raise typer.Exit(code=3)
