@@ -128,7 +128,7 @@ def _finite(name: str, arr: np.ndarray) -> None:
     if bad.any():
         first = tuple(int(i) for i in np.argwhere(bad)[0])
         raise DatasetError(
-            f"dataset {name!r} holds {int(bad.sum())} non-finite values (NaN or inf; the "
+            f"dataset {name!r} holds {int(bad.sum())} non-finite values (NaN or inf, the "
             f"first at index {first})"
         )
 
@@ -232,6 +232,8 @@ def load_arcs(path: str | os.PathLike) -> Arcs:
             return _read(f, path)
     except DatasetError as exc:
         text = str(exc)
+        if ";" not in text:  # what is wrong, then how to fix it
+            text = f"{text}; {_FIX}"
         raise DatasetError(text if str(path) in text else f"{path}: {text}") from None
     except READ_ERRORS as exc:
         raise DatasetError(

@@ -256,7 +256,7 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
     bad = ~np.isfinite(params)
     if bad.any():
         raise ModelFileError(
-            f"dataset 'params' holds {int(bad.sum())} non-finite values (NaN or inf; the "
+            f"dataset 'params' holds {int(bad.sum())} non-finite values (NaN or inf, the "
             f"first at index {int(np.flatnonzero(bad)[0])}); {_FIX}"
         )
     return fitted
@@ -280,6 +280,8 @@ def load_model(
             fitted = _read_model(f, path)
     except DatasetError as exc:
         text = str(exc)
+        if ";" not in text:  # what is wrong, then how to fix it
+            text = f"{text}; {_FIX}"
         raise ModelFileError(text if str(path) in text else f"model file {path}: {text}") from None
     except READ_ERRORS as exc:  # JSON: ValueError
         raise ModelFileError(f"{path} {_CORRUPT} model file ({exc}); {_FIX}") from None
