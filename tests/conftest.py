@@ -51,3 +51,27 @@ def itokawa(data_folder):
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture
+def old_hdf5():
+    """``with old_hdf5(path) as f``: turn a hamgrav HDF5 file into one as an older hamgrav
+    wrote it (no checksum user block, same content) and open it for editing."""
+    from contextlib import contextmanager
+    from pathlib import Path
+
+    import h5py
+
+    @contextmanager
+    def edit(path):
+        path = Path(path)
+        tmp = path.with_name(path.name + ".old")
+        with h5py.File(path, "r") as src, h5py.File(tmp, "w") as dst:
+            dst.attrs.update(dict(src.attrs))
+            for name in src:
+                src.copy(src[name], dst, name=name)
+        tmp.replace(path)
+        with h5py.File(path, "a") as f:
+            yield f
+
+    return edit

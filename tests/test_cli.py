@@ -226,8 +226,8 @@ def test_fit_resume_after_interrupt(arcs_file, tmp_path, monkeypatch):
     out = tmp_path / "resumed.h5"
     real_save = models.save_checkpoint
 
-    def save_then_interrupt(path, params, state):
-        real_save(path, params, state)
+    def save_then_interrupt(*args):
+        real_save(*args)
         raise KeyboardInterrupt
 
     monkeypatch.setattr(models, "save_checkpoint", save_then_interrupt)
@@ -242,16 +242,22 @@ def test_fit_resume_after_interrupt(arcs_file, tmp_path, monkeypatch):
 
 
 def test_internal_errors_are_not_user_errors(monkeypatch, arcs_file, tmp_path):
-    """A bug (a plain ValueError) keeps its traceback instead of exiting as a user error."""
+    """A bug (a plain ValueError) is reported as a bug (status 70, "please report", no
+    traceback); with --debug its traceback comes back."""
     from hamgrav.fit import estimator
 
     def broken(*args, **kwargs):
         raise ValueError("a bug")
 
     monkeypatch.setattr(estimator.GravityEstimator, "fit", broken)
-    result = runner.invoke(
-        app, ["fit", str(arcs_file), "--model", "sh:2", "-o", str(tmp_path / "m.h5")]
+    args = ["fit", str(arcs_file), "--model", "sh:2", "-o", str(tmp_path / "m.h5")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 70
+    assert "internal error (a bug in hamgrav, not in your input): ValueError: a bug" in (
+        result.output
     )
+    assert "Please report it" in result.output and "Traceback" not in result.output
+    result = runner.invoke(app, ["--debug", *args])
     assert result.exit_code == 1 and isinstance(result.exception, ValueError)
 
 

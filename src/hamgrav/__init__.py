@@ -19,6 +19,8 @@ _EXPORTS = {
     "CanonicalUnits": "units",
     "HamgravError": "errors",
     "InputError": "errors",
+    "DatasetError": "errors",
+    "HamgravWarning": "errors",
     # bodies and interiors
     "Body": "bodies.catalogue",
     "load_body": "bodies.catalogue",

@@ -1,27 +1,71 @@
 """The ``hamgrav`` command: a thin layer over the library.
 
-Errors caused by input, data or environment (:class:`hamgrav.errors.HamgravError`) are
-printed in one line and exit with status 2; anything else is a bug and keeps its traceback.
+Every option is checked before any work starts, and every output path before anything is
+computed. Errors caused by input, data or environment (:class:`hamgrav.errors.HamgravError`)
+are printed in one line and exit with status 2 (so do the option errors of typer itself);
+warnings (:class:`hamgrav.errors.HamgravWarning`) in one line too. Anything else is a bug: it
+is reported in one line asking for a report and exits with status 70; ``hamgrav --debug``
+shows its traceback instead. Ctrl-C exits with status 130 and says what was kept.
 """
 
 from __future__ import annotations
 
-import inspect
-import json
+import signal
 import sys
-from dataclasses import replace
-from pathlib import Path
-from typing import Annotated
+import threading
 
-import typer
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
-from .bodies.catalogue import list_bodies, load_body
-from .bodies.interiors import DEFAULT_TRUTH_MASCONS
-from .errors import HamgravError, InputError
+class _DeferInterrupt:
+    """Hold Ctrl-C while the libraries load (a second or two), then exit with one line.
+
+    A KeyboardInterrupt raised inside an import is not reliably seen: some libraries import
+    their optional dependencies under ``except BaseException`` and swallow it, so a Ctrl-C
+    at the wrong moment was simply lost and the command ran on. Only the main thread can
+    install the handler; an ignored SIGINT (a background job) stays ignored.
+    """
+
+    def __enter__(self):
+        self.hit = False
+        self.previous = None
+        main = threading.current_thread() is threading.main_thread()
+        if main and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self.previous = signal.signal(signal.SIGINT, self._hold)
+        return self
+
+    def _hold(self, signum, frame):
+        self.hit = True
+
+    def __exit__(self, *exc):
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+        if self.hit or (exc[0] is not None and issubclass(exc[0], KeyboardInterrupt)):
+            sys.stderr.write("interrupted while starting; nothing was done\n")
+            raise SystemExit(130)
+        return False
+
+
+with _DeferInterrupt():
+    import functools
+    import inspect
+    import json
+    import math
+    import os
+    import warnings
+    from dataclasses import replace
+    from pathlib import Path
+    from typing import Annotated
+
+    import click
+    import typer
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    from .bodies.catalogue import load_body
+    from .bodies.interiors import DEFAULT_TRUTH_MASCONS
+    from .errors import HamgravError, HamgravWarning, InputError
+    from .io.files import check_output
 
 app = typer.Typer(
     help="Learn small-body gravity fields from tracking arcs.",
@@ -31,10 +75,90 @@ app = typer.Typer(
 console = Console()
 err = Console(stderr=True)
 
+#: Exit status of an internal error (a bug): EX_SOFTWARE of sysexits.h.
+BUG_EXIT = 70
+#: Where bugs are reported.
+ISSUES = "the hamgrav issue tracker"
+_debug = {"on": False}
+
+
+@app.callback()
+def _main(
+    debug: Annotated[
+        bool,
+        typer.Option(
+            "--debug",
+            help="Show the traceback of an internal error (a bug) instead of a one-line report.",
+            envvar="HAMGRAV_DEBUG",
+        ),
+    ] = False,
+) -> None:
+    """Learn small-body gravity fields from tracking arcs."""
+    _debug["on"] = debug
+
 
 def _fail(exc: Exception) -> None:
-    err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False)
+    err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
     raise typer.Exit(code=2)
+
+
+def _warn(message, category, filename, lineno, file=None, line=None) -> None:
+    """Print hamgrav's warnings in one line (other warnings keep Python's format)."""
+    if issubclass(category, HamgravWarning):
+        err.print(
+            f"[bold yellow]warning:[/] {escape(str(message))}", highlight=False, soft_wrap=True
+        )
+    else:
+        err.print(escape(warnings.formatwarning(message, category, filename, lineno, line)))
+
+
+def _command(typer_app: typer.Typer, *args, **kwargs):
+    """``typer_app.command(*args, **kwargs)`` with hamgrav's error handling: user errors in
+    one line (status 2), Ctrl-C in one line (status 130), bugs reported as bugs (status 70,
+    the traceback with --debug)."""
+
+    def register(func):
+        @functools.wraps(func)
+        def run(*a, **k):
+            with warnings.catch_warnings():
+                warnings.simplefilter("always", HamgravWarning)
+                warnings.showwarning = _warn
+                try:
+                    return func(*a, **k)
+                except HamgravError as exc:
+                    _fail(exc)
+                except KeyboardInterrupt:
+                    err.print(
+                        "interrupted; no file is left half-written (hamgrav writes each file "
+                        "whole or not at all)",
+                        highlight=False,
+                        soft_wrap=True,
+                    )
+                    raise typer.Exit(code=130) from None
+                except (
+                    typer.Exit,
+                    typer.Abort,
+                    click.exceptions.Exit,
+                    click.ClickException,
+                    click.Abort,
+                ):
+                    raise
+                except Exception as exc:
+                    if _debug["on"]:
+                        raise
+                    err.print(
+                        f"[bold red]internal error[/] (a bug in hamgrav, not in your input): "
+                        f"{escape(type(exc).__name__)}: {escape(str(exc))}. Please report it "
+                        f"to {ISSUES} with the command you ran; 'hamgrav --debug ...' shows "
+                        "the traceback.",
+                        highlight=False,
+                        soft_wrap=True,
+                    )
+                    raise typer.Exit(code=BUG_EXIT) from None
+
+        return typer_app.command(*args, **kwargs)(run)
+
+    return register
 
 
 def _progress() -> Progress:
@@ -52,11 +176,62 @@ def _say(text: str) -> None:
     err.print(escape(text), highlight=False)
 
 
-def _floats(text: str, name: str) -> list[float]:
+# ------------------------------------------------------------------------------ option checks
+# One place per kind of option value: every command calls these before it does any work.
+
+
+def _number(value, name: str, low: float, *, open_low: bool = False, integer: bool = False):
+    """``value`` if it is a finite number >= ``low`` (> with ``open_low``), an integer with
+    ``integer``; else :class:`InputError` naming the option ``name``."""
+    kind = "an integer" if integer else "a finite number"
+    bound = f"{'>' if open_low else '>='} {low:g}"
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    ok = ok and math.isfinite(value) and (value > low if open_low else value >= low)
+    if integer:
+        ok = ok and float(value).is_integer()
+    if not ok:
+        raise InputError(f"{name} must be {kind} {bound}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _floats(text: str, name: str, low: float = -math.inf, *, open_low: bool = False) -> list[float]:
+    """The comma-separated finite numbers of option ``name`` (at least one), each >= ``low``
+    (> with ``open_low``)."""
+    words = [w.strip() for w in text.split(",") if w.strip()]
     try:
-        return [float(v) for v in text.split(",") if v.strip()]
+        values = [float(w) for w in words]
     except ValueError:
         raise InputError(f"{name} must be comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise InputError(f"{name} needs at least one number, got {text!r}")
+    return [_number(v, name, low, open_low=open_low) for v in values]
+
+
+def _ints(text: str, name: str, low: int = 1) -> list[int]:
+    """The comma-separated integers >= ``low`` of option ``name`` (at least one)."""
+    words = [w.strip() for w in text.split(",") if w.strip()]
+    try:
+        if not words:
+            raise ValueError
+        values = [int(w) for w in words]
+    except ValueError:
+        raise InputError(
+            f"{name} must be comma-separated integers >= {low}, got {text!r}"
+        ) from None
+    return [_number(v, name, low, integer=True) for v in values]
+
+
+def _output(path: Path | None, name: str = "-o") -> Path | None:
+    """Check an output file before the work that produces it (see :func:`check_output`)."""
+    return None if path is None else check_output(path, name)
+
+
+def _output_folder(path: Path, name: str) -> Path:
+    """An output folder: created if missing; anything else than a folder there is refused."""
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{name} {path} exists and is not a folder; give a folder path")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 def _command_line(words: list[str], options: dict) -> str:
@@ -70,14 +245,23 @@ def _command_line(words: list[str], options: dict) -> str:
     return " ".join(parts)
 
 
-@app.command()
+@_command(app)
 def bodies() -> None:
     """List the bodies hamgrav can load (synthetic ones need no data folder)."""
-    for name in list_bodies():
+    from .bodies.catalogue import SYNTHETIC_BODIES, BodyDataError, bodies_dir, read_catalogue
+
+    for name in SYNTHETIC_BODIES:
+        console.print(name)
+    try:
+        catalogue = read_catalogue(bodies_dir())
+    except BodyDataError as exc:
+        warnings.warn(f"{exc} Only the synthetic bodies are listed.", HamgravWarning, 1)
+        return
+    for name in sorted(catalogue):
         console.print(name)
 
 
-@app.command()
+@_command(app)
 def body(
     name: str,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
@@ -88,12 +272,10 @@ def body(
     """Constants, Brillouin radius, envelope and perturbation figures of one body."""
     from .bodies.summary import body_report
 
-    try:
-        report = body_report(load_body(name), n_mascons=mascons)
-    except HamgravError as exc:
-        _fail(exc)
+    _number(mascons, "--mascons", 10, integer=True)
+    report = body_report(load_body(name), n_mascons=mascons)
     if as_json:
-        sys.stdout.write(json.dumps(report) + "\n")
+        sys.stdout.write(json.dumps(report, allow_nan=False) + "\n")
         return
     table = Table(title=escape(f"{report['name']}: {report['description']}"))
     table.add_column("quantity")
@@ -121,7 +303,7 @@ def body(
     console.print(table)
 
 
-@app.command()
+@_command(app)
 def simulate(
     campaign: Annotated[Path, typer.Argument(help="Campaign description (TOML).")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],
@@ -135,27 +317,26 @@ def simulate(
     from .io.oem import export_oem_by_trajectory
     from .sim.campaign import load_campaign, simulate_campaign
 
-    try:
-        config = load_campaign(campaign)
-        n = len(config.families)
-        with _progress() as progress:
-            task = progress.add_task(f"simulating {n} orbits", total=n)
-            arcs = simulate_campaign(
-                config, progress=lambda done, total: progress.update(task, completed=done)
-            )
-        save_arcs(arcs, output)
-        if oem is not None:
-            oem.mkdir(parents=True, exist_ok=True)
-            export_oem_by_trajectory(arcs, oem)
-    except HamgravError as exc:
-        _fail(exc)
+    _output(output)
+    if oem is not None and oem.exists() and not oem.is_dir():
+        raise InputError(f"--oem {oem} exists and is not a folder; give a folder path")
+    config = load_campaign(campaign)
+    n = len(config.families)
+    with _progress() as progress:
+        task = progress.add_task(f"simulating {n} orbits", total=n)
+        arcs = simulate_campaign(
+            config, progress=lambda done, total: progress.update(task, completed=done)
+        )
+    save_arcs(arcs, output)
+    if oem is not None:
+        export_oem_by_trajectory(arcs, _output_folder(oem, "--oem"))
     console.print(
         f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples "
         f"({arcs.n_arcs * arcs.samples_per_arc * 6} scalars) to {output}"
     )
 
 
-@app.command("import-oem")
+@_command(app, "import-oem")
 def import_oem_command(
     files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="CCSDS OEM files.")],
     body_name: Annotated[str, typer.Option("--body", help="The central body (catalogue name).")],
@@ -202,35 +383,33 @@ def import_oem_command(
     from .io.arcs import save_arcs
     from .io.oem_import import import_oem
 
-    try:
-        body_obj = load_body(body_name)
-        rotation = None
-        given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
-        if any(given) and not all(given):
-            raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
-        if all(given):
-            rotation = RotationModel(
-                pole_ra, pole_dec, prime_meridian, body_obj.spin_period_s, rotation_epoch
-            )
-        origin_m = None
-        if origin is not None:
-            origin_m = _floats(origin, "--origin")
-            if len(origin_m) != 3:
-                raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
-        arcs = import_oem(
-            files,
-            body_obj,
-            samples=samples,
-            max_gap_s=max_gap,
-            rotation=rotation,
-            epoch=epoch,
-            sigma_r_m=sigma_r,
-            sigma_v_m_s=sigma_v,
-            origin_m=origin_m,
+    _output(output)
+    body_obj = load_body(body_name)
+    rotation = None
+    given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
+    if any(given) and not all(given):
+        raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
+    if all(given):
+        rotation = RotationModel(
+            pole_ra, pole_dec, prime_meridian, body_obj.spin_period_s, rotation_epoch
         )
-        save_arcs(arcs, output)
-    except HamgravError as exc:
-        _fail(exc)
+    origin_m = None
+    if origin is not None:
+        origin_m = _floats(origin, "--origin")
+        if len(origin_m) != 3:
+            raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
+    arcs = import_oem(
+        files,
+        body_obj,
+        samples=samples,
+        max_gap_s=max_gap,
+        rotation=rotation,
+        epoch=epoch,
+        sigma_r_m=sigma_r,
+        sigma_v_m_s=sigma_v,
+        origin_m=origin_m,
+    )
+    save_arcs(arcs, output)
     cfg = arcs.config
     console.print(
         f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples from {len(files)} files "
@@ -247,12 +426,19 @@ def _model_option(model: str) -> dict:
 
     if model in PRESETS:
         return preset(model)
-    if model.startswith("sh:") and model[3:].isdigit() and int(model[3:]) >= 2:
+    if model.startswith("sh:") and model[3:].isdecimal() and 2 <= int(model[3:]) <= MAX_SH_DEGREE:
         return {"term": "sh", "degree": int(model[3:])}
     raise InputError(
-        f"--model must be one of {', '.join(PRESETS)} or 'sh:L' with L >= 2 (e.g. sh:8), "
-        f"got {model!r}"
+        f"--model must be one of {', '.join(PRESETS)} or 'sh:L' with 2 <= L <= "
+        f"{MAX_SH_DEGREE} (e.g. sh:8), got {model!r}"
     )
+
+
+#: Largest SH degree --model accepts: (L+1)^2 - 4 coefficients, 1677 at 40, already far
+#: more than any campaign of hamgrav constrains (the paper goes to 16).
+MAX_SH_DEGREE = 40
+#: Largest hidden layer --hidden accepts (the paper's networks have 16 or 24 units).
+MAX_HIDDEN = 1024
 
 
 def _stage_of(solver: dict) -> dict:
@@ -261,7 +447,7 @@ def _stage_of(solver: dict) -> dict:
     return {k: solver.get(k) for k in keys} | {"arcs_file": solver.get("arcs_file")}
 
 
-@app.command()
+@_command(app)
 def fit(
     arcs_file: Annotated[Path, typer.Argument(metavar="ARCS", help="Arcs file (HDF5).")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Model file to write.")],
@@ -304,7 +490,9 @@ def fit(
 ) -> None:
     """Fit a gravity correction to tracking arcs and write the model file.
 
-    The model file is written in every case, with the fit's outcome and diagnostics."""
+    The model file is written in every case, with the fit's outcome and diagnostics. An
+    interrupted fit keeps a checkpoint beside it (OUTPUT.checkpoint.npz): --resume continues
+    it, and a fresh fit refuses to start over it."""
     from .fit.estimator import GravityEstimator, body_for_arcs, truth_shell_metric
     from .io.arcs import load_arcs
     from .io.models import (
@@ -315,47 +503,90 @@ def fit(
         save_model,
     )
 
+    # options, then the output, then the inputs: all before any computation
+    settings = _model_option(model)
+    term = settings["term"]
+    hidden_sizes = tuple(_ints(hidden, "--hidden"))
+    if max(hidden_sizes) > MAX_HIDDEN:
+        raise InputError(f"--hidden layers must have at most {MAX_HIDDEN} units, got {hidden}")
+    if prior not in (None, "shape"):
+        raise InputError(f"--prior must be 'shape', got {prior!r}")
+    if solver not in (None, "adam", "lm"):
+        raise InputError(f"--solver must be 'adam' or 'lm', got {solver!r}")
+    kaula_value: float | str | None = None
+    if kaula is not None:
+        if kaula == "scan":
+            kaula_value = "scan"
+        else:
+            name = "--kaula (one weight ALPHA >= 0, or 'scan')"
+            values = _floats(kaula, name, 0.0)
+            if len(values) != 1:
+                raise InputError(f"{name} takes one value, got {kaula!r}")
+            kaula_value = values[0]
+        if term != "sh":
+            raise InputError("--kaula applies to spherical-harmonics models (--model sh:L)")
+    _number(steps, "--steps", 1, integer=True)
+    _number(learning_rate, "--learning-rate", 0.0, open_low=True)
+    _number(seed, "--seed", 0, integer=True)
+    _output(output)
     ckpt = checkpoint_path_for(output)
-    try:
-        settings = _model_option(model)
-        term = settings["term"]
-        hidden_sizes = tuple(int(h) for h in _floats(hidden, "--hidden"))
-        if prior not in (None, "shape"):
-            raise InputError(f"--prior must be 'shape', got {prior!r}")
-        kaula_value: float | str | None = None
-        if kaula is not None:
-            kaula_value = "scan" if kaula == "scan" else _floats(kaula, "--kaula")[0]
-            if term != "sh":
-                raise InputError("--kaula applies to spherical-harmonics models (--model sh:L)")
-        arcs = load_arcs(arcs_file)
-        output.parent.mkdir(parents=True, exist_ok=True)
-        body_obj = body_for_arcs(arcs)
-        if solver is not None:  # a solver by name replaces the configuration's
-            settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
-            if solver == "adam":  # the harmonic penalty is an LM objective term
-                settings["harmonic"] = None
-        if term == "network":
-            settings = {**settings, "hidden": hidden_sizes}
-        settings |= {"adam_steps": steps, "learning_rate": learning_rate}
-        estimator = GravityEstimator(
-            **settings,
-            prior=prior,
-            weighted=weighted,
-            kaula=kaula_value,
-            kaula_metric=truth_shell_metric(arcs, body_obj) if kaula_value == "scan" else None,
-            seed=seed,
-            body=body_obj,
+    if resume and not ckpt.exists():
+        raise InputError(f"no checkpoint {ckpt} to resume from; run without --resume")
+    if not resume and (ckpt.exists() or ckpt.is_symlink()):
+        raise InputError(
+            f"a checkpoint of an interrupted fit exists: {ckpt}; continue that fit with the "
+            "same command and --resume, or delete the checkpoint to start afresh"
         )
-        theta0, resume_state, stages = None, None, []
-        if init is not None:
-            structure = estimator.build_model(arcs)[0].key()
-            previous = load_model(init, expect_body=arcs.body_name, expect_structure=structure)
-            theta0 = previous.params
-            stages = previous.stages or [{"stage": 0, **_stage_of(previous.solver)}]
-        if resume:
-            if not ckpt.exists():
-                raise InputError(f"no checkpoint {ckpt} to resume from; run without --resume")
-            theta0, resume_state = load_checkpoint(ckpt)
+    _output(ckpt, "checkpoint")
+
+    arcs = load_arcs(arcs_file)
+    body_obj = body_for_arcs(arcs)
+    if solver is not None:  # a solver by name replaces the configuration's
+        settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
+        if solver == "adam":  # the harmonic penalty is an LM objective term
+            settings["harmonic"] = None
+    if term == "network":
+        settings = {**settings, "hidden": hidden_sizes}
+    settings |= {"adam_steps": steps, "learning_rate": learning_rate}
+    estimator = GravityEstimator(
+        **settings,
+        prior=prior,
+        weighted=weighted,
+        kaula=kaula_value,
+        kaula_metric=truth_shell_metric(arcs, body_obj) if kaula_value == "scan" else None,
+        seed=seed,
+        body=body_obj,
+    )
+    theta0, resume_state, stages, init_digest = None, None, [], None
+    if init is not None:
+        structure = estimator.build_model(arcs)[0].key()
+        previous = load_model(init, expect_body=arcs.body_name, expect_structure=structure)
+        if not _same_origin(previous.body_origin_m, arcs.body_origin_m):
+            raise InputError(
+                f"--init {init} was fitted in a frame with origin {previous.body_origin_m} m, "
+                f"the arcs {arcs_file} are in one with origin {arcs.body_origin_m} m; "
+                "continue a model of the same campaign"
+            )
+        theta0 = previous.params
+        init_digest = _digest(previous.params)
+        stages = previous.stages or [{"stage": 0, **_stage_of(previous.solver)}]
+    run_solver = (estimator.warm_solver if init is not None else None) or estimator.make_solver()
+    identity = {
+        "arcs_sha256": arcs.digest(),
+        "model": model,
+        "hidden": list(hidden_sizes) if term == "network" else None,
+        "prior": prior,
+        "weighted": weighted,
+        "kaula": kaula_value,
+        "seed": seed,
+        "init_params_sha256": init_digest,
+        "solver": run_solver.name,
+        "solver_settings": run_solver.describe(),
+    }
+    if resume:
+        theta0, resume_state = load_checkpoint(ckpt, expect=identity)
+    arcs_path = os.path.abspath(arcs_file)
+    try:
         with _progress() as progress:
             total = steps if estimator.solver_name == "adam" else None
             task = progress.add_task("fitting", total=total)
@@ -368,24 +599,33 @@ def fit(
                 arcs,
                 init=theta0,
                 callback=on_iteration,
-                checkpoint=lambda th, st: save_checkpoint(ckpt, th, st),
+                checkpoint=lambda th, st: save_checkpoint(ckpt, th, st, identity),
                 resume=resume_state,
             )
-        fitted = estimator.fitted_
-        fitted.solver["arcs_file"] = str(arcs_file)
-        if init is not None:
-            this = {"stage": len(stages), **_stage_of(fitted.solver), "warm_started": True}
-            fitted = replace(fitted, stages=[*stages, this])
-        save_model(fitted, output)
-        ckpt.unlink(missing_ok=True)
     except KeyboardInterrupt:
-        err.print(
-            f"interrupted; the last checkpoint is kept: resume with the same command "
-            f"and --resume ({ckpt})"
-        )
+        if ckpt.exists():
+            err.print(
+                f"interrupted; the last checkpoint is kept: resume with the same command "
+                f"and --resume ({ckpt})",
+                highlight=False,
+                soft_wrap=True,
+            )
+        else:
+            err.print(
+                "interrupted before the first checkpoint; nothing was saved: run the same "
+                "command again",
+                highlight=False,
+                soft_wrap=True,
+            )
         raise typer.Exit(code=130) from None
-    except HamgravError as exc:
-        _fail(exc)
+    fitted = estimator.fitted_
+    fitted.solver["arcs_file"] = arcs_path
+    fitted = replace(fitted, training={**fitted.training, "arcs_file": arcs_path})
+    if init is not None:
+        this = {"stage": len(stages), **_stage_of(fitted.solver), "warm_started": True}
+        fitted = replace(fitted, stages=[*stages, this])
+    save_model(fitted, output)
+    ckpt.unlink(missing_ok=True)
     result = estimator.result_
     diag = estimator.diagnostics_
     console.print(
@@ -400,19 +640,83 @@ def fit(
             "[bold yellow]warning:[/] the fit does not clearly improve on no correction "
             f"(cost ratio {diag['relative_cost']:.3g}); do not use this model",
             highlight=False,
+            soft_wrap=True,
         )
         if strict:
             raise typer.Exit(code=3)
 
 
-@app.command()
+def _same_origin(a, b) -> bool:
+    """Whether two frame origins [m] are the same frame: within a micrometre (truths of one
+    body drawn with other seeds differ by round-off in their centre of mass; their own
+    digests tell them apart)."""
+    return math.dist(a, b) <= 1e-6
+
+
+def _digest(values) -> str:
+    """SHA-256 (hex) of a parameter vector's float64 bytes."""
+    import hashlib
+
+    import numpy as np
+
+    return hashlib.sha256(np.ascontiguousarray(values, dtype=np.float64).tobytes()).hexdigest()
+
+
+def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
+    """The arcs whose truth ``fitted`` is compared with: ``--arcs`` or the file recorded at
+    the fit, refused unless it holds the truth (and frame) the model was fitted against."""
+    from .io.arcs import load_arcs
+
+    training = fitted.training
+    source = arcs_file or training.get("arcs_file") or fitted.solver.get("arcs_file")
+    if not source:
+        raise InputError(f"model file {model_file} records no arcs file; pass --arcs ARCS")
+    if arcs_file is None and not Path(source).exists():
+        raise InputError(
+            f"the arcs file model {model_file} was fitted to, {source}, is gone; pass the "
+            "campaign's arcs with --arcs ARCS"
+        )
+    arcs = load_arcs(source)
+    if arcs.body_name != fitted.body_name:
+        raise InputError(
+            f"arcs {source} are of body {arcs.body_name!r}, model {model_file} of "
+            f"{fitted.body_name!r}; pass the arcs of this model's campaign with --arcs"
+        )
+    if not _same_origin(arcs.body_origin_m, fitted.body_origin_m):
+        raise InputError(
+            f"arcs {source} are in a frame with origin {arcs.body_origin_m} m, model "
+            f"{model_file} in one with origin {fitted.body_origin_m} m (another campaign); "
+            "pass the arcs of this model's campaign with --arcs"
+        )
+    truth = training.get("truth_sha256")
+    if "truth_sha256" not in training:
+        warnings.warn(
+            f"model file {model_file} does not record the truth it was fitted against "
+            f"(older hamgrav); comparing with the truth of {source} unchecked",
+            HamgravWarning,
+            2,
+        )
+    elif truth is not None and arcs.truth_digest() != truth:
+        # (None: fitted to arcs without a truth, imported tracking: any truth may serve)
+        raise InputError(
+            f"arcs {source} hold another truth than the one model {model_file} was fitted "
+            "against (truth digests differ); pass the arcs of this model's campaign with --arcs"
+        )
+    return arcs
+
+
+@_command(app)
 def evaluate(
     model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
-    shells: Annotated[str, typer.Option(help="Shell radii r / R_B.")] = "1.05,1.1,1.2",
-    altitude: Annotated[str, typer.Option(help="Surface-following altitudes [m].")] = "30",
+    shells: Annotated[str, typer.Option(help="Shell radii r / R_B (>= 1).")] = "1.05,1.1,1.2",
+    altitude: Annotated[str, typer.Option(help="Surface-following altitudes [m] (>= 0).")] = "30",
     arcs_file: Annotated[
         Path | None,
-        typer.Option("--arcs", help="Arcs whose truth to compare with (default: the fit's)."),
+        typer.Option(
+            "--arcs",
+            help="Arcs whose truth to compare with (default: the fit's); refused unless they "
+            "hold the truth the model was fitted against.",
+        ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     sigma: Annotated[
@@ -432,40 +736,36 @@ def evaluate(
     from .bodies.evaluation import evaluation_sets, set_label
     from .core.fields import field_errors
     from .fit.estimator import body_for_arcs
-    from .io.arcs import load_arcs
     from .io.models import load_model
 
-    try:
-        fitted = load_model(model_file)
-        source = arcs_file or fitted.solver.get("arcs_file")
-        if not source:
-            raise InputError("the model file records no arcs file; pass --arcs ARCS")
-        arcs = load_arcs(source)
-        if arcs.body_name != fitted.body_name:
-            raise InputError(
-                f"arcs are of body {arcs.body_name!r}, the model of {fitted.body_name!r}"
-            )
-        sets = evaluation_sets(
-            body_for_arcs(arcs), _floats(shells, "--shells"), _floats(altitude, "--altitude")
-        )
-        uncertainty = None
-        if sigma:
-            from .fit.covariance import formal_covariance, uncertainty_report
+    # shells inside R_B cut through the body, where the truth's mascons are singular
+    radii = _floats(shells, "--shells (radii r / R_B)", 1.0)
+    altitudes = _floats(altitude, "--altitude (metres above the surface)", 0.0)
+    fitted = load_model(model_file)
+    arcs = _truth_arcs(fitted, model_file, arcs_file)
+    sets = evaluation_sets(body_for_arcs(arcs), radii, altitudes)
+    uncertainty = None
+    if sigma:
+        from .fit.covariance import formal_covariance, uncertainty_report
 
-            covariance = formal_covariance(fitted, arcs)
-            truth = arcs.truth if arcs.has_truth else None
-            uncertainty = uncertainty_report(fitted, covariance, sets, truth)
-        if not arcs.has_truth:
-            _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, uncertainty)
-            return
-        errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
-    except HamgravError as exc:
-        _fail(exc)
+        covariance = formal_covariance(fitted, arcs)
+        truth = arcs.truth if arcs.has_truth else None
+        uncertainty = uncertainty_report(fitted, covariance, sets, truth)
+    if not arcs.has_truth:
+        _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, uncertainty)
+        return
+    errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
+    bad = [name for name, value in errors.items() if not math.isfinite(value)]
+    if bad:
+        raise InputError(
+            f"model {model_file} gives a non-finite field error on {', '.join(bad)} (its "
+            "potential overflows there); the model is unusable: fit it again"
+        )
     if as_json:
         out = {"model": str(model_file), "field_error": errors}
         if uncertainty is not None:
             out["uncertainty"] = uncertainty
-        sys.stdout.write(json.dumps(out) + "\n")
+        sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
         return
     table = Table(title=escape(f"relative field error of {model_file} ({fitted.body_name})"))
     table.add_column("evaluation set")
@@ -517,7 +817,7 @@ def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool, uncer
         }
         if uncertainty is not None:
             out["uncertainty"] = uncertainty
-        sys.stdout.write(json.dumps(out) + "\n")
+        sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
         return
     rp, rv = np.asarray(report["rms_position_m"]), np.asarray(report["rms_velocity_mm_s"])
     table = Table(title=escape(f"residuals of {model_file} on {arcs.n_arcs} arcs (no truth)"))
@@ -565,7 +865,7 @@ def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool, uncer
     console.print(NO_TRUTH_NOTE, highlight=False)
 
 
-@app.command("export")
+@_command(app, "export")
 def export_command(
     model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
     fmt: Annotated[
@@ -593,43 +893,43 @@ def export_command(
     from .fit.estimator import body_in_frame
     from .io.models import load_model
 
-    try:
-        fmt = fmt.lower()
-        if fmt not in ("icgem", "shadr", "json"):
-            raise InputError(f"--format must be icgem, shadr or json, got {fmt!r}")
-        fitted = load_model(model_file)
-        if fmt == "json":
-            from .io.network_json import write_network_json
+    fmt = fmt.lower()
+    if fmt not in ("icgem", "shadr", "json"):
+        raise InputError(f"--format must be icgem, shadr or json, got {fmt!r}")
+    if degree is not None:
+        _number(degree, "--degree", 2, integer=True)
+        if degree > MAX_SH_DEGREE:
+            raise InputError(f"--degree must be at most {MAX_SH_DEGREE}, got {degree}")
+    _output(output)
+    fitted = load_model(model_file)
+    if fmt == "json":
+        from .io.network_json import write_network_json
 
-            write_network_json(fitted, output)
-            console.print(f"wrote {output}: the network and the known part, canonical units")
-            return
-        from .core.terms import SphericalHarmonics
-        from .io.shformats import sh_export, write_icgem, write_shadr
+        write_network_json(fitted, output)
+        console.print(f"wrote {output}: the network and the known part, canonical units")
+        return
+    from .core.terms import SphericalHarmonics
+    from .io.shformats import sh_export, write_icgem, write_shadr
 
-        is_sh = isinstance(fitted.model.learnable, SphericalHarmonics)
-        reference = (
-            None
-            if is_sh
-            else body_in_frame(fitted.body_name, fitted.body_origin_m).brillouin_radius
-        )
-        covariance, note = None, "no formal errors (--no-errors)"
-        if errors and is_sh:
-            covariance, note = _formal_covariance(fitted, arcs_file)
-        elif errors:
-            note = "no formal errors: they are computed for SH models only"
-        export = sh_export(
-            fitted,
-            degree=degree if degree is not None or is_sh else 8,
-            reference_radius=reference,
-            covariance=covariance,
-        )
-        if fmt == "icgem":
-            write_icgem(export, output, source=str(model_file))
-        else:
-            write_shadr(export, output)
-    except HamgravError as exc:
-        _fail(exc)
+    is_sh = isinstance(fitted.model.learnable, SphericalHarmonics)
+    reference = (
+        None if is_sh else body_in_frame(fitted.body_name, fitted.body_origin_m).brillouin_radius
+    )
+    covariance, note = None, "no formal errors (--no-errors)"
+    if errors and is_sh:
+        covariance, note = _formal_covariance(fitted, arcs_file)
+    elif errors:
+        note = "no formal errors: they are computed for SH models only"
+    export = sh_export(
+        fitted,
+        degree=degree if degree is not None or is_sh else 8,
+        reference_radius=reference,
+        covariance=covariance,
+    )
+    if fmt == "icgem":
+        write_icgem(export, output, source=str(model_file))
+    else:
+        write_shadr(export, output)
     console.print(
         f"wrote {output}: degree {export.degree}, GM {export.gm_m3_s2:.10g} m^3/s^2, reference "
         f"radius {export.reference_radius_m:.10g} m, fully normalised, C00 = 1 (central term "
@@ -653,7 +953,7 @@ def _formal_covariance(fitted, arcs_file: Path | None):
 
     if fitted.model.per_trajectory:
         return None, "no formal errors: the model has per-trajectory terms (e.g. SRP)"
-    source = arcs_file or fitted.solver.get("arcs_file")
+    source = arcs_file or fitted.training.get("arcs_file") or fitted.solver.get("arcs_file")
     if source is None or (arcs_file is None and not Path(source).is_file()):
         return None, "no formal errors: the fit's arcs file is not there (pass --arcs ARCS)"
     arcs = load_arcs(source)
@@ -664,7 +964,7 @@ def _formal_covariance(fitted, arcs_file: Path | None):
     return formal_covariance(fitted, arcs), f"formal errors from {source}"
 
 
-@app.command()
+@_command(app)
 def select(
     model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Current model file.")],
     pool: Annotated[
@@ -683,29 +983,36 @@ def select(
     at the current model (no measurements, no truth)."""
     from .fit.design import select_orbits
     from .fit.estimator import body_in_frame
+    from .io.files import atomic_path
     from .io.models import load_model
     from .sim.campaign import load_campaign
 
-    try:
-        fitted = load_model(model_file)
-        config = load_campaign(pool)
-        if config.body != fitted.body_name:
-            raise InputError(
-                f"the pool is for body {config.body!r}, the model for {fitted.body_name!r}"
-            )
-        body_obj = body_in_frame(fitted.body_name, fitted.body_origin_m)
-        with _progress() as progress:
-            progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
-            rows = select_orbits(
-                fitted,
-                list(config.families),
-                config.tracking,
-                brillouin_radius=body_obj.brillouin_radius,
-                picks=picks,
-                seed=seed,
-            )
-    except HamgravError as exc:
-        _fail(exc)
+    _number(picks, "--picks", 1, integer=True)
+    _number(seed, "--seed", 0, integer=True)
+    _output(output)
+    fitted = load_model(model_file)
+    config = load_campaign(pool)
+    if config.body != fitted.body_name:
+        raise InputError(
+            f"the pool {pool} is for body {config.body!r}, the model {model_file} for "
+            f"{fitted.body_name!r}"
+        )
+    if picks > len(config.families):
+        raise InputError(
+            f"--picks {picks} is more than the {len(config.families)} candidate orbits of "
+            f"the pool {pool}"
+        )
+    body_obj = body_in_frame(fitted.body_name, fitted.body_origin_m)
+    with _progress() as progress:
+        progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
+        rows = select_orbits(
+            fitted,
+            list(config.families),
+            config.tracking,
+            brillouin_radius=body_obj.brillouin_radius,
+            picks=picks,
+            seed=seed,
+        )
     table = Table(title="D-optimal picks (log det of the accumulated information)")
     for col in ("pick", "candidate", "r / R_B", "incl. [deg]", "gain", "log det", "random order"):
         table.add_column(escape(col), justify="right")
@@ -721,7 +1028,9 @@ def select(
         )
     console.print(table)
     if output is not None:
-        output.write_text(json.dumps({"model": str(model_file), "picks": rows}, indent=2) + "\n")
+        text = json.dumps({"model": str(model_file), "picks": rows}, indent=2, allow_nan=False)
+        with atomic_path(output) as tmp:
+            tmp.write_text(text + "\n")
 
 
 # ------------------------------------------------------------------------------ experiments
@@ -765,22 +1074,24 @@ def _experiment_command(experiment):
         for name, default in (("repeat", 1), ("workers", 0)):
             if given[name] == default:
                 given[name] = None
-        try:
-            base = config_type.from_toml(runner["config"]) if runner["config"] else defaults
-            config = base.updated(kwargs, "command-line options")
-            output = runner["output"] or Path(experiment.default_output)
-            report, _ = _run_and_report(
-                experiment,
-                config,
-                seed=runner["seed"],
-                repeat=runner["repeat"],
-                output=output,
-                workers=runner["workers"],
-                scheduler=runner["scheduler"],
-                command=_command_line(["experiment", experiment.name], given),
-            )
-        except HamgravError as exc:
-            _fail(exc)
+        base = config_type.from_toml(runner["config"]) if runner["config"] else defaults
+        config = base.updated(kwargs, "command-line options")
+        output = runner["output"] or Path(experiment.default_output)
+        if output.exists() and not output.is_dir():
+            raise InputError(f"-o {output} exists and is not a folder; give a folder path")
+        _number(runner["seed"], "--seed", 0, integer=True)
+        _number(runner["repeat"], "--repeat", 1, integer=True)
+        _number(runner["workers"], "--workers", 0, integer=True)
+        report, _ = _run_and_report(
+            experiment,
+            config,
+            seed=runner["seed"],
+            repeat=runner["repeat"],
+            output=output,
+            workers=runner["workers"],
+            scheduler=runner["scheduler"],
+            command=_command_line(["experiment", experiment.name], given),
+        )
         console.print(f"wrote {output}/results.json, README.md and figures ({report['wall_s']} s)")
 
     params = []
@@ -828,17 +1139,14 @@ def _experiment_command(experiment):
     return command
 
 
-@experiment_app.command("readme")
+@_command(experiment_app, "readme")
 def experiment_readme(
     folder: Annotated[Path, typer.Argument(help="A results folder holding results.json.")],
 ) -> None:
     """Write a results folder's README.md again from its results.json (no computation)."""
     from .experiments.runner import rerender_readme
 
-    try:
-        path = rerender_readme(folder)
-    except HamgravError as exc:
-        _fail(exc)
+    path = rerender_readme(folder)
     console.print(f"wrote {path}")
 
 
@@ -847,13 +1155,14 @@ def _register_experiments() -> None:
 
     for name in experiment_names():
         experiment = get_experiment(name)
-        experiment_app.command(name)(_experiment_command(experiment))
+        _command(experiment_app, name)(_experiment_command(experiment))
 
 
-_register_experiments()
+with _DeferInterrupt():  # imports the experiments (and with them the numerical core)
+    _register_experiments()
 
 
-@app.command()
+@_command(app)
 def demo(
     output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the outputs.")] = Path(
         "demo-output"
@@ -872,23 +1181,22 @@ def demo(
     from .io.arcs import save_arcs
     from .io.oem import export_oem_by_trajectory
 
-    try:
-        report, outputs = _run_and_report(
-            get_experiment("descent"),
-            DescentExperimentConfig.demo(),
-            seed=seed,
-            repeat=1,
-            output=output,
-            workers=0,
-            scheduler=None,
-            command=_command_line(["demo"], {"seed": seed, "output": output}),
-        )
-        arcs = outputs[0].artefacts["arcs"]
-        save_arcs(arcs, output / "arcs.h5")
-        (output / "oem").mkdir(exist_ok=True)
-        export_oem_by_trajectory(arcs, output / "oem")
-    except HamgravError as exc:
-        _fail(exc)
+    _number(seed, "--seed", 0, integer=True)
+    if output.exists() and not output.is_dir():
+        raise InputError(f"-o {output} exists and is not a folder; give a folder path")
+    report, outputs = _run_and_report(
+        get_experiment("descent"),
+        DescentExperimentConfig.demo(),
+        seed=seed,
+        repeat=1,
+        output=output,
+        workers=0,
+        scheduler=None,
+        command=_command_line(["demo"], {"seed": seed, "output": output}),
+    )
+    arcs = outputs[0].artefacts["arcs"]
+    save_arcs(arcs, output / "arcs.h5")
+    export_oem_by_trajectory(arcs, _output_folder(output / "oem", "the OEM folder"))
     result = report["repetitions"][0]
     table = Table(title="synthetic contact binary: models fitted to the tracking")
     for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):

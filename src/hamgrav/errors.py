@@ -3,7 +3,10 @@
 Every exception hamgrav raises because of the user's input, data or environment derives from
 :class:`HamgravError`; its message names the problem, the file or option, and the fix. The
 command line reports these in one line and exits with status 2. Anything else (a plain
-``ValueError``, ``KeyError``...) is a bug in hamgrav and keeps its traceback.
+``ValueError``, ``KeyError``...) is a bug in hamgrav: the command line says so, asks for a
+report, and shows the traceback with ``--debug``. :class:`HamgravWarning` marks input that is
+used but deserves attention (an old file without a checksum, more parameters than
+observations); the command line prints it in one line.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ __all__ = [
     "DatasetError",
     "SimulationError",
     "PropagationError",
+    "HamgravWarning",
 ]
 
 
@@ -40,3 +44,7 @@ class SimulationError(HamgravError, RuntimeError):
 
 class PropagationError(HamgravError, RuntimeError):
     """A trajectory could not be propagated under a model (it diverged or became stiff)."""
+
+
+class HamgravWarning(UserWarning):
+    """Input is used as given but deserves the user's attention (the message says why)."""

@@ -31,7 +31,7 @@ def test_contact_binary_parameters():
 def test_synthetic_listed_without_data(monkeypatch, tmp_path):
     monkeypatch.setenv("HAMGRAV_BODIES", str(tmp_path / "nowhere"))
     assert list_bodies() == ["synthetic"]
-    with pytest.raises(BodyDataError, match="body catalogue not found: .*HAMGRAV_BODIES"):
+    with pytest.raises(BodyDataError, match=r"folder .*nowhere \(HAMGRAV_BODIES\) does not exist"):
         load_body("itokawa")
 
 

@@ -36,7 +36,7 @@ def test_truncated_file(small_arcs, tmp_path):
     path = save_arcs(small_arcs, tmp_path / "arcs.h5")
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
-    with pytest.raises(DatasetError, match="truncated, corrupted or not a hamgrav arcs file"):
+    with pytest.raises(DatasetError, match="arcs.h5 is truncated, corrupted or was edited"):
         load_arcs(path)
 
 
@@ -49,9 +49,9 @@ def test_corrupted_bytes(small_arcs, tmp_path):
         load_arcs(path)
 
 
-def test_missing_dataset_named(small_arcs, tmp_path):
+def test_missing_dataset_named(small_arcs, tmp_path, old_hdf5):
     path = save_arcs(small_arcs, tmp_path / "arcs.h5")
-    with h5py.File(path, "a") as f:
+    with old_hdf5(path) as f:
         del f["true_states"]
     with pytest.raises(DatasetError, match="dataset 'true_states' is missing"):
         load_arcs(path)

@@ -27,7 +27,7 @@ def test_orbit_grid():
         and max(f.inclination_deg for f in fams) == 80.0
     )
     assert len(orbit_grid(48, (1.2, 2.0), (10.0, 80.0))) == 48
-    with pytest.raises(ValueError, match="orbit radius must exceed 1 R_B"):
+    with pytest.raises(ValueError, match=r"orbit radius_rb must be a finite number in \(1, 20\]"):
         OrbitFamily(0.9, 10.0)
 
 

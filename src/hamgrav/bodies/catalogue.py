@@ -13,6 +13,7 @@ no data at all.
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -34,6 +35,7 @@ __all__ = [
     "contact_binary",
     "list_bodies",
     "load_body",
+    "read_catalogue",
 ]
 
 #: Newtonian constant of gravitation [m^3 kg^-1 s^-2] (CODATA 2018).
@@ -144,7 +146,17 @@ def bodies_dir() -> Path:
     return repo_root.parent / "shared" / "bodies"
 
 
-def _read_catalogue(folder: Path) -> dict:
+def read_catalogue(folder: Path) -> dict:
+    """The catalogue (``catalogue.json``) of the body data folder ``folder``: one JSON
+    object keyed by body name. A missing folder or file, or a malformed one, raises
+    :class:`BodyDataError` naming it and the fix."""
+    folder = Path(folder)
+    source = "HAMGRAV_BODIES" if os.environ.get("HAMGRAV_BODIES") else "the default location"
+    if not folder.is_dir():
+        raise BodyDataError(
+            f"body data folder {folder} ({source}) does not exist. Set HAMGRAV_BODIES to the "
+            "folder holding catalogue.json and the body sub-folders, or use the synthetic body."
+        )
     path = folder / "catalogue.json"
     if not path.is_file():
         raise BodyDataError(
@@ -154,13 +166,16 @@ def _read_catalogue(folder: Path) -> dict:
         )
     try:
         data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError, OSError) as exc:
         raise BodyDataError(
             f"body catalogue {path} is not valid JSON ({exc}); restore the file from the "
             "shared data folder."
         ) from None
-    if not isinstance(data, dict):
-        raise BodyDataError(f"body catalogue {path} must hold one JSON object keyed by body name")
+    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+        raise BodyDataError(
+            f"body catalogue {path} must hold one JSON object keyed by body name, each entry "
+            "an object; restore the file from the shared data folder."
+        )
     return data
 
 
@@ -176,7 +191,14 @@ def _load_mesh(path: Path) -> trimesh.Trimesh:
         raise BodyDataError(f"cannot read mesh {path}: {exc}; the file is malformed") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) < 4:
         raise BodyDataError(f"mesh {path} holds no triangle surface; the file is malformed")
-    if not mesh.is_watertight or mesh.volume <= 0:
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if not np.all(np.isfinite(vertices)):
+        raise BodyDataError(f"mesh {path} has non-finite vertex coordinates; the file is malformed")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise BodyDataError(f"mesh {path} has faces that refer to missing vertices; malformed")
+    with np.errstate(all="ignore"):  # a degenerate mesh is refused here, not warned about
+        closed = mesh.is_watertight and mesh.volume > 0
+    if not closed:
         raise BodyDataError(
             f"mesh {path} is not a closed, outward-wound surface (watertight="
             f"{mesh.is_watertight}, volume={mesh.volume:.4g}); hamgrav needs a closed mesh"
@@ -189,7 +211,7 @@ def list_bodies(folder: str | os.PathLike | None = None) -> list[str]:
     ``folder``, default :func:`bodies_dir`)."""
     names = list(SYNTHETIC_BODIES)
     try:
-        names += sorted(_read_catalogue(Path(folder) if folder else bodies_dir()))
+        names += sorted(read_catalogue(Path(folder) if folder else bodies_dir()))
     except BodyDataError:
         pass
     return names
@@ -204,7 +226,7 @@ def load_body(
     if key in SYNTHETIC_BODIES:
         return SYNTHETIC_BODIES[key]()
     folder = Path(folder) if folder else bodies_dir()
-    catalogue = _read_catalogue(folder)
+    catalogue = read_catalogue(folder)
     if key not in catalogue:
         raise BodyDataError(
             f"unknown body {name!r}; known: {', '.join(list_bodies(folder))} "
@@ -216,6 +238,8 @@ def load_body(
         period = float(entry["spin_period_s"])
         files = dict(entry["files"])
         mesh_file = files["mesh_low" if low_resolution else "mesh"]
+        if not all(isinstance(v, str) and v for v in files.values()):
+            raise ValueError("files must map names to file names")
         rotation = entry.get("rotation")
         if rotation is not None:
             rotation = RotationModel(
@@ -231,6 +255,12 @@ def load_body(
             f"bad field {exc}); it needs gm_m3_s2, spin_period_s and files.mesh (and, when "
             "given, rotation.pole_ra_deg, pole_dec_deg and prime_meridian_deg)"
         ) from None
+    for field_name, value in (("gm_m3_s2", gm), ("spin_period_s", period)):
+        if not (math.isfinite(value) and value > 0):
+            raise BodyDataError(
+                f"catalogue entry {key!r} in {folder / 'catalogue.json'}: {field_name} must be "
+                f"a finite number > 0, got {value}; restore the catalogue"
+            )
     body_folder = folder / key
     mesh = _load_mesh(body_folder / mesh_file)
     return Body(

@@ -22,6 +22,7 @@ cannot represent.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -155,6 +156,11 @@ def _head_region(body: Body, points: np.ndarray) -> tuple[np.ndarray, str]:
     if "mascons_head_tail_2x" in files and "mascons" in files:
         contrast_set = _read_mascon_csv(files["mascons_head_tail_2x"])
         uniform_set = _read_mascon_csv(files["mascons"])
+        if len(contrast_set) != len(uniform_set):
+            raise BodyDataError(
+                f"mascon files {files['mascons_head_tail_2x']} and {files['mascons']} must "
+                "hold the same mascons (one row each); restore them"
+            )
         ratio = contrast_set[:, 3] / uniform_set[:, 3]
         reference_head = ratio > np.sqrt(ratio.min() * ratio.max())
         ref_points = body.units.to_length(contrast_set[:, :3]) - (
@@ -170,12 +176,18 @@ def _read_mascon_csv(path) -> np.ndarray:
     import gzip
 
     try:
-        with gzip.open(path, "rt") as fh:
-            data = np.loadtxt(fh, delimiter=",", skiprows=1)
-    except (OSError, ValueError, EOFError) as exc:
+        # an empty file is refused below, without numpy's own warning about it
+        with gzip.open(path, "rt") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            data = np.loadtxt(fh, delimiter=",", skiprows=1, ndmin=2)
+    except (OSError, ValueError, EOFError, UnicodeDecodeError) as exc:
         raise BodyDataError(f"cannot read mascon file {path}: {exc}; restore it") from None
-    if data.ndim != 2 or data.shape[1] != 4:
+    if data.ndim != 2 or data.shape[1] != 4 or len(data) < 1:
         raise BodyDataError(f"mascon file {path} must have 4 columns x_m,y_m,z_m,mass_fraction")
+    if not np.all(np.isfinite(data)):
+        raise BodyDataError(f"mascon file {path} holds non-finite values (NaN or inf); restore it")
+    if np.any(data[:, 3] <= 0):
+        raise BodyDataError(f"mascon file {path} has mass fractions <= 0; restore it")
     return data
 
 

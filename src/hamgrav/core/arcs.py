@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -98,6 +99,40 @@ class Arcs:
             trajectory=self.trajectory[idx],
         )
 
+    def truth_digest(self) -> str:
+        """SHA-256 (hex) identifying the truth these arcs were simulated under: the body,
+        its units, the frame origin and the truth mascons. Equal digests: the same truth."""
+        h = hashlib.sha256()
+        h.update(
+            repr(
+                (
+                    self.body_name,
+                    float(self.gm_m3_s2),
+                    float(self.spin_period_s),
+                    tuple(float(v) for v in self.body_origin_m),
+                )
+            ).encode()
+        )
+        _hash_arrays(h, self.truth.positions, self.truth.masses)
+        return h.hexdigest()
+
+    def digest(self) -> str:
+        """SHA-256 (hex) identifying these arcs: their truth (:meth:`truth_digest`), noise
+        levels, times, noisy states and trajectory indices."""
+        h = hashlib.sha256(self.truth_digest().encode())
+        h.update(repr((float(self.sigma_r_m), float(self.sigma_v_m_s))).encode())
+        _hash_arrays(h, self.times, self.states, self.trajectory)
+        return h.hexdigest()
+
     def arcs_of(self, trajectories) -> np.ndarray:
         """Indices of the arcs that belong to the given trajectory indices."""
         return np.flatnonzero(np.isin(self.trajectory, np.asarray(trajectories)))
+
+
+def _hash_arrays(h, *arrays) -> None:
+    """Feed arrays to ``h`` by value: floats as float64, integers as int64, with shapes."""
+    for a in arrays:
+        a = np.asarray(a)
+        canon = np.ascontiguousarray(a, dtype=np.float64 if a.dtype.kind == "f" else np.int64)
+        h.update(repr(canon.shape).encode())
+        h.update(canon.tobytes())

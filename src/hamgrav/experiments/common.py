@@ -70,6 +70,9 @@ class CampaignConfig(ExperimentConfig):
         # the option of harmonic_option(), in the experiments that have a network-best row
         if getattr(self, "harmonic", 0.0) < 0:
             raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
+        # the campaign file's checks (orbit radii and count, tracking, truth mascons) apply
+        # to an experiment's campaign too, before anything runs
+        Campaign.from_dict(self.campaign(0).as_dict(), source="campaign")
 
     def campaign(self, seed: int) -> Campaign:
         """The campaign this config describes, seeded."""

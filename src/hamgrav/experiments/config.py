@@ -4,6 +4,7 @@ checked at the edge, and written back into results.json."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from pathlib import Path
@@ -54,9 +55,12 @@ def _coerce(name: str, kind, value):
         if isinstance(value, bool) or not isinstance(value, int | float | str):
             raise InputError(f"{name} must be a number, got {value!r}")
         try:
-            return float(value)
+            number = float(value)
         except ValueError:
             raise InputError(f"{name} must be a number, got {value!r}") from None
+        if not math.isfinite(number):  # NaN passes every range check of ``check``
+            raise InputError(f"{name} must be a finite number, got {value!r}")
+        return number
     if kind is str:
         if not isinstance(value, str):
             raise InputError(f"{name} must be a string, got {value!r}")

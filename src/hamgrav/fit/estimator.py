@@ -13,6 +13,7 @@ ends with the outcome "no improvement".
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
@@ -25,7 +26,7 @@ from ..core.arcs import Arcs
 from ..core.model import Model, evaluate_field
 from ..core.problem import ArcProblem
 from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics, Term
-from ..errors import InputError
+from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits
 from .adam import Adam
 from .base import Outcome, Solver, SolveResult
@@ -66,8 +67,9 @@ TERMS = ("network", "sh", "none")
 NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=30, rtol=1e-9, lambda0=1e-2, damping_floor=1e-8)
 #: Weight of network-best's harmonic penalty (:mod:`hamgrav.fit.harmonic`). On the eight
 #: 112-arc Itokawa descent draws it lowers the median miss from 4.2 to 3.5 m and the worst
-#: draw's from 7.9 to 5.7 m (results/descent-itokawa-x8-no-harmonic against descent-itokawa-x8); on 67P it
-#: keeps the network from bending below the arcs (deep-region error 1.13 -> 0.47, seed 0).
+#: draw's from 7.9 to 5.7 m (results/descent-itokawa-x8-no-harmonic against
+#: results/descent-itokawa-x8); on 67P it keeps the network from bending below the arcs
+#: (deep-region error 1.13 -> 0.47, seed 0).
 NETWORK_BEST_HARMONIC = 1e-5
 #: Warm-started continual stages start near the optimum: at most 10 iterations per member,
 #: stopping after 3 accepted steps that do not lower the validation cost.
@@ -344,6 +346,7 @@ class GravityEstimator:
             train = np.setdiff1d(np.arange(arcs.n_arcs), validation)
         else:
             train, validation = self.split(arcs)
+        _warn_if_underdetermined(problem, ensemble, arcs, train)
         solver = solver or (self.warm_solver if warm else None) or self.make_solver()
         kaula_scores = None
         if problem.n_params == 0:
@@ -446,6 +449,12 @@ class GravityEstimator:
             prior=prior_info,
             solver=solver_info,
             history={k: [float(x) for x in v] for k, v in result.history.items()},
+            training={
+                "arcs_sha256": arcs.digest(),
+                # arcs without a truth (imported tracking) record none: any simulated arcs of
+                # the same body and frame may then serve to evaluate the model
+                "truth_sha256": arcs.truth_digest() if arcs.has_truth else None,
+            },
         )
         return self
 
@@ -548,6 +557,23 @@ class GravityEstimator:
         """Potential (n,) and acceleration (n, 3) [canonical] of the fitted model's
         ``which`` part ("learnable", "known" or "total") at canonical ``points`` (n, 3)."""
         return evaluate_field(self.model_, self.params_, points, which)
+
+
+def _warn_if_underdetermined(problem: ArcProblem, ensemble: bool, arcs: Arcs, train) -> None:
+    """Warn when one fit (one member of an ensemble) has more parameters than the training
+    arcs have observed scalars (6 per sample after the first, which anchors the arc)."""
+    n_train = arcs.n_arcs if train is None else len(train)
+    observations = n_train * (arcs.samples_per_arc - 1) * 6
+    term = problem.model.learnable
+    n = problem.n_params - (term.n_params - term.member_params if ensemble else 0)
+    if n > observations:
+        warnings.warn(
+            f"{n} parameters{' per network' if ensemble else ''} but only {observations} "
+            f"observed scalars in the {n_train} training arcs: the fit is underdetermined "
+            "and its field is not constrained by the data; use more arcs or a smaller model",
+            HamgravWarning,
+            stacklevel=3,
+        )
 
 
 def _nothing_to_fit(problem: ArcProblem) -> SolveResult:

@@ -28,6 +28,10 @@ class FittedModel:
         solver: solver name, settings and outcome, plain data.
         history: per-iteration records (lists of numbers keyed by name), plain data.
         stages: per-stage summaries of a continual fit.
+        training: what the model was fitted to, so that it is evaluated against the same
+            truth anywhere: ``arcs_sha256`` and ``truth_sha256`` (:meth:`Arcs.digest`,
+            :meth:`Arcs.truth_digest`) and, when fitted from a file, ``arcs_file`` (absolute).
+            Empty for files written before hamgrav recorded it.
     """
 
     model: Model
@@ -41,6 +45,7 @@ class FittedModel:
     solver: dict = field(default_factory=dict)
     history: dict = field(default_factory=dict)
     stages: list = field(default_factory=list)
+    training: dict = field(default_factory=dict)
 
     @property
     def learnable_params(self) -> np.ndarray:

@@ -16,27 +16,42 @@ Layout of an arcs file (all numeric data canonical unless the name says otherwis
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from ..core.arcs import Arcs
+from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
 from ..errors import DatasetError
 from .files import atomic_path
+from .hdf5 import READ_ERRORS, create, open_for_reading, seal, write_array
 
-__all__ = ["save_arcs", "load_arcs"]
+__all__ = ["save_arcs", "load_arcs", "MAX_STATE"]
 
 ARCS_FORMAT = "hamgrav-arcs"
 ARCS_FORMAT_VERSION = 1
+#: Largest |q| and |p| an arcs file may hold (canonical). An orbit at the campaign limit of
+#: 20 Brillouin radii is below 20 synchronous radii for every catalogued body; a thousand is
+#: far beyond any tracking and below where propagation breaks down.
+MAX_STATE = 1e3
+_FIX = "regenerate it with 'hamgrav simulate'"
 
 
 def save_arcs(arcs: Arcs, path: str | os.PathLike) -> Path:
-    """Write ``arcs`` to an HDF5 file at ``path`` (atomically)."""
+    """Write ``arcs`` to an HDF5 file at ``path`` (atomically, with checksums: see
+    :mod:`hamgrav.io.hdf5`)."""
     path = Path(path)
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+    with atomic_path(path) as tmp:
+        _write(arcs, tmp)
+        seal(tmp)
+    return path
+
+
+def _write(arcs: Arcs, tmp: Path) -> None:
+    with create(tmp) as f:
         f.attrs.update(
             {
                 "format": ARCS_FORMAT,
@@ -53,19 +68,19 @@ def save_arcs(arcs: Arcs, path: str | os.PathLike) -> Path:
                 "config": json.dumps(arcs.config),
                 "trajectory_kind": json.dumps(list(arcs.trajectory_kind)),
                 "units": "canonical: length = synchronous radius, time = spin period / 2 pi",
+                "arcs_sha256": arcs.digest(),
             }
         )
-        f["times"] = arcs.times
-        f["states"] = arcs.states
-        f["true_states"] = arcs.true_states
-        f["trajectory"] = arcs.trajectory
+        write_array(f, "times", arcs.times)
+        write_array(f, "states", arcs.states)
+        write_array(f, "true_states", arcs.true_states)
+        write_array(f, "trajectory", arcs.trajectory)
         info = f.create_group("trajectory_info")
         for key, value in arcs.trajectory_info.items():
-            info[key] = np.asarray(value)
+            write_array(info, key, value)
         truth = f.create_group("truth")
-        truth["positions"] = arcs.truth.positions
-        truth["masses"] = arcs.truth.masses
-    return path
+        write_array(truth, "positions", arcs.truth.positions)
+        write_array(truth, "masses", arcs.truth.masses)
 
 
 def _attr(f, name):
@@ -76,52 +91,161 @@ def _attr(f, name):
     return value.decode() if isinstance(value, bytes) else value
 
 
-def _data(f, name):
+def _data(f, name, ndim: int, kind: str = "f"):
+    """Dataset ``name`` as an array of ``ndim`` dimensions and a numeric ``kind``."""
     try:
-        return np.asarray(f[name][()])
+        obj = f[name]
     except KeyError:
         raise DatasetError(f"dataset {name!r} is missing") from None
+    if not isinstance(obj, h5py.Dataset):
+        raise DatasetError(f"{name!r} is not a dataset")
+    arr = np.asarray(obj[()])
+    if arr.ndim != ndim:
+        raise DatasetError(f"dataset {name!r} has shape {arr.shape}, expected {ndim} dimensions")
+    if arr.dtype.kind not in ("iu" if kind == "i" else "iuf"):
+        want = "integers" if kind == "i" else "real numbers"
+        raise DatasetError(f"dataset {name!r} holds {arr.dtype}, expected {want}")
+    return arr.astype(np.int64 if kind == "i" else float)
+
+
+def _number(f, name, low: float, *, open_low: bool) -> float:
+    value = float(_attr(f, name))
+    if not (math.isfinite(value) and (value > low if open_low else value >= low)):
+        sign = ">" if open_low else ">="
+        raise DatasetError(f"attribute {name!r} must be a finite number {sign} {low}, got {value}")
+    return value
+
+
+def _json(f, name, kind):
+    value = json.loads(_attr(f, name))
+    if not isinstance(value, kind):
+        raise DatasetError(f"attribute {name!r} must hold a JSON {kind.__name__}")
+    return value
+
+
+def _finite(name: str, arr: np.ndarray) -> None:
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise DatasetError(
+            f"dataset {name!r} holds {int(bad.sum())} non-finite values (NaN or inf, the "
+            f"first at index {first})"
+        )
+
+
+def _read(f, path: Path) -> Arcs:
+    fmt = f.attrs.get("format")
+    if fmt is None:
+        raise DatasetError(
+            f"{path} is an HDF5 file but not a hamgrav arcs file (it has no 'format' "
+            "attribute); pass a file written by 'hamgrav simulate'"
+        )
+    fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt)
+    if fmt != ARCS_FORMAT:
+        raise DatasetError(
+            f"not a hamgrav arcs file (format {fmt!r}); pass a file written by 'hamgrav simulate'"
+        )
+    version = int(_attr(f, "format_version"))
+    if version > ARCS_FORMAT_VERSION:
+        raise DatasetError(
+            f"format version {version} is newer than this hamgrav reads "
+            f"({ARCS_FORMAT_VERSION}); upgrade hamgrav"
+        )
+    times = _data(f, "times", 2)
+    states = _data(f, "states", 3)
+    true_states = _data(f, "true_states", 3)
+    trajectory = _data(f, "trajectory", 1, "i")
+    positions, masses = _data(f, "truth/positions", 2), _data(f, "truth/masses", 1)
+    group = f.get("trajectory_info")
+    if not isinstance(group, h5py.Group):
+        raise DatasetError("group 'trajectory_info' is missing")
+    info = {k: np.asarray(v[()]) for k, v in group.items()}
+    kinds = _json(f, "trajectory_kind", list)
+    if not all(isinstance(k, str) for k in kinds):
+        raise DatasetError("attribute 'trajectory_kind' must list trajectory kinds (strings)")
+    origin = np.asarray(_attr(f, "body_origin_m"), dtype=float)
+    metadata = {
+        "body_name": str(_attr(f, "body_name")),
+        "gm_m3_s2": _number(f, "gm_m3_s2", 0.0, open_low=True),
+        "spin_period_s": _number(f, "spin_period_s", 0.0, open_low=True),
+        "sigma_r_m": _number(f, "sigma_r_m", 0.0, open_low=False),
+        "sigma_v_m_s": _number(f, "sigma_v_m_s", 0.0, open_low=False),
+        "interior": str(_attr(f, "interior")),
+        "interior_parameters": _json(f, "interior_parameters", dict),
+        "seed": int(_attr(f, "seed")),
+        "config": _json(f, "config", dict),
+    }
+    n, m = times.shape
+    if n < 1 or m < 2:
+        raise DatasetError(f"holds {n} arcs of {m} samples; an arcs file needs arcs of >= 2")
+    if states.shape != (n, m, 6) or true_states.shape != (n, m, 6):
+        raise DatasetError(
+            f"datasets 'states' {states.shape} and 'true_states' {true_states.shape} must have "
+            f"shape {(n, m, 6)} to match 'times' {times.shape}"
+        )
+    if trajectory.shape != (n,) or trajectory.min() < 0 or trajectory.max() >= len(kinds):
+        raise DatasetError(
+            "dataset 'trajectory' must hold one index per arc into 'trajectory_kind'"
+        )
+    # imported tracking has no truth: its true states are NaN and its truth mascons empty
+    no_truth = metadata["interior"] == NO_TRUTH
+    if no_truth and not np.all(np.isnan(true_states)):
+        raise DatasetError(
+            f"interior {NO_TRUTH!r} (no truth) but dataset 'true_states' holds numbers"
+        )
+    checked = [("times", times), ("states", states)]
+    checked += [] if no_truth else [("true_states", true_states)]
+    for name, arr in checked:
+        _finite(name, arr)
+    if np.any(np.diff(times, axis=1) <= 0):
+        raise DatasetError("dataset 'times' must increase strictly along every arc")
+    for name, arr in checked[1:]:
+        largest = float(np.max(np.abs(arr)))
+        if largest > MAX_STATE:
+            raise DatasetError(
+                f"dataset {name!r} holds a state component of {largest:.3g} (canonical); "
+                f"states beyond {MAX_STATE:g} synchronous radii are not tracking data"
+            )
+    if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+        raise DatasetError(f"attribute 'body_origin_m' must be 3 finite numbers, got {origin}")
+    if positions.ndim != 2 or positions.shape[1:] != (3,) or masses.shape != positions.shape[:1]:
+        raise DatasetError(
+            f"truth mascons need positions (n, 3) and masses (n,), got {positions.shape} and "
+            f"{masses.shape}"
+        )
+    _finite("truth/positions", positions)
+    _finite("truth/masses", masses)
+    if no_truth and len(masses):
+        raise DatasetError(f"interior {NO_TRUTH!r} (no truth) but truth mascons are stored")
+    if not no_truth and (len(masses) < 1 or not masses.sum() > 0):
+        raise DatasetError("the truth mascons must have a positive total mass")
+    return Arcs(
+        times=times,
+        states=states,
+        true_states=true_states,
+        trajectory=trajectory,
+        trajectory_kind=tuple(kinds),
+        trajectory_info=info,
+        body_origin_m=tuple(float(v) for v in origin),
+        truth=MasconSet(positions, masses),
+        **metadata,
+    )
 
 
 def load_arcs(path: str | os.PathLike) -> Arcs:
-    """Read an arcs file written by :func:`save_arcs`; errors name the file and the problem."""
+    """Read an arcs file written by :func:`save_arcs`, checking its checksums, shapes and
+    values (finite, in range); every problem raises :class:`DatasetError` naming the file
+    and the fix."""
     path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"arcs file not found: {path}")
     try:
-        with h5py.File(path, "r") as f:
-            if _attr(f, "format") != ARCS_FORMAT:
-                raise DatasetError(f"not a hamgrav arcs file (format {_attr(f, 'format')!r})")
-            version = int(_attr(f, "format_version"))
-            if version > ARCS_FORMAT_VERSION:
-                raise DatasetError(
-                    f"format version {version} is newer than this hamgrav reads "
-                    f"({ARCS_FORMAT_VERSION}); upgrade hamgrav"
-                )
-            info = {k: np.asarray(v[()]) for k, v in f["trajectory_info"].items()}
-            return Arcs(
-                times=_data(f, "times"),
-                states=_data(f, "states"),
-                true_states=_data(f, "true_states"),
-                trajectory=_data(f, "trajectory"),
-                trajectory_kind=tuple(json.loads(_attr(f, "trajectory_kind"))),
-                trajectory_info=info,
-                body_name=str(_attr(f, "body_name")),
-                gm_m3_s2=float(_attr(f, "gm_m3_s2")),
-                spin_period_s=float(_attr(f, "spin_period_s")),
-                body_origin_m=tuple(float(v) for v in _attr(f, "body_origin_m")),
-                sigma_r_m=float(_attr(f, "sigma_r_m")),
-                sigma_v_m_s=float(_attr(f, "sigma_v_m_s")),
-                truth=MasconSet(_data(f, "truth/positions"), _data(f, "truth/masses")),
-                interior=str(_attr(f, "interior")),
-                interior_parameters=json.loads(_attr(f, "interior_parameters")),
-                seed=int(_attr(f, "seed")),
-                config=json.loads(_attr(f, "config")),
-            )
+        with open_for_reading(path, "arcs file", _FIX, fmt=ARCS_FORMAT) as f:
+            return _read(f, path)
     except DatasetError as exc:
-        raise DatasetError(f"{path}: {exc}") from None
-    except (OSError, KeyError, ValueError, TypeError, json.JSONDecodeError) as exc:
+        text = str(exc)
+        if ";" not in text:  # what is wrong, then how to fix it
+            text = f"{text}; {_FIX}"
+        raise DatasetError(text if str(path) in text else f"{path}: {text}") from None
+    except READ_ERRORS as exc:
         raise DatasetError(
-            f"{path} is truncated, corrupted or not a hamgrav arcs file ({exc}); regenerate it "
-            "with 'hamgrav simulate'"
+            f"{path} is truncated, corrupted or not a hamgrav arcs file ({exc}); {_FIX}"
         ) from None

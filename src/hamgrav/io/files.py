@@ -1,4 +1,9 @@
-"""Writing files safely: to a temporary file beside the target, moved into place on success."""
+"""Writing files safely: to a temporary file beside the target, moved into place on success.
+
+Only regular files are replaced. A symbolic link at the target is refused rather than
+replaced by a plain file (which would silently cut the link) or written through (which would
+change a file elsewhere); a folder, device, FIFO or socket is refused too.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +15,32 @@ from pathlib import Path
 
 from ..errors import DatasetError, InputError
 
-__all__ = ["atomic_path", "read_toml"]
+__all__ = ["atomic_path", "check_output", "read_toml"]
+
+
+def check_output(path: str | os.PathLike, what: str = "output") -> Path:
+    """Refuse an output path that cannot be written atomically, before any work: its folder
+    must exist, and anything already at ``path`` must be a regular file (replaced). Raises
+    :class:`InputError` naming ``what`` (e.g. an option) and the fix."""
+    path = Path(path)
+    if path.is_symlink():
+        raise InputError(
+            f"{what} {path} is a symbolic link (to {os.readlink(path)}); hamgrav replaces "
+            "outputs atomically and will not cut the link: write to the link's target "
+            "directly, or remove the link"
+        )
+    if path.is_dir():
+        raise InputError(f"{what} {path} is a folder; give a file name (e.g. {path}/out.h5)")
+    if path.exists() and not path.is_file():
+        raise InputError(
+            f"{what} {path} exists and is not a regular file (a device, FIFO or socket); "
+            "give the path of a regular file"
+        )
+    if not path.parent.is_dir():
+        raise InputError(
+            f"{what}: folder {path.parent} does not exist; create it first (mkdir -p {path.parent})"
+        )
+    return path
 
 
 @contextmanager
@@ -20,6 +50,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
     path = Path(path)
     if not path.parent.is_dir():
         raise DatasetError(f"output folder {path.parent} does not exist; create it first")
+    check_output(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix + ".part", dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
@@ -36,9 +67,13 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
 def read_toml(path: str | os.PathLike) -> dict:
     """The table of a TOML file; a missing or malformed file raises :class:`InputError`."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path} is a folder, not a TOML file; pass the file itself")
     if not path.is_file():
         raise InputError(f"file not found: {path}")
     try:
         return tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror})") from None

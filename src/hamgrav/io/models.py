@@ -7,16 +7,21 @@ period / 2 pi, unless the name says otherwise)::
                           spin_period_s, body_origin_m, estimate_trajectory_params,
                           structure_key, units,
                           model (JSON of Model.describe(), known mascons included),
-                          prior, solver, stages (JSON)
+                          prior, solver, stages, training (JSON: arcs_file, arcs_sha256,
+                          truth_sha256 of the arcs fitted to)
     /params        (n,)  learnable parameters, then (estimate_trajectory_params) each
                          trajectory's per-trajectory parameters, trajectory-major
     /history       attrs: names (JSON list, the order of the entries),
                           json (JSON object of the entries that are not arrays of numbers)
     /history/<name>      float array for each numeric entry
 
+The file's checksum is in its HDF5 user block and datasets carry fletcher32 checksums (see
+:mod:`hamgrav.io.hdf5`). ``training`` is absent in files written before hamgrav 0.2.1.
+
 A checkpoint is an ``.npz`` archive: ``params``, ``header`` (one JSON string: format, the
-plain-data part of the state, and which state entries are numpy arrays or scalars) and one
-``state_array/<key>`` entry per numpy value of the state.
+plain-data part of the state, which state entries are numpy arrays or scalars, and the
+``identity`` of the fit that wrote it) and one ``state_array/<key>`` entry per numpy value
+of the state. The zip format checks every entry's CRC-32 on reading.
 
 JSON fields accept numpy scalars and arrays (written as numbers and lists).
 """
@@ -24,7 +29,9 @@ JSON fields accept numpy scalars and arrays (written as numbers and lists).
 from __future__ import annotations
 
 import json
+import math
 import os
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -33,9 +40,10 @@ import numpy as np
 
 from .. import __version__
 from ..core.model import Model
-from ..errors import DatasetError
+from ..errors import DatasetError, HamgravWarning
 from ..fit.fitted import FittedModel
 from .files import atomic_path
+from .hdf5 import READ_ERRORS, create, open_for_reading, seal, write_array
 
 __all__ = [
     "ModelFileError",
@@ -53,7 +61,8 @@ CHECKPOINT_FORMAT_VERSION = 1
 UNITS = "canonical: length = synchronous radius, time = spin period / 2 pi"
 _ARRAY_PREFIX = "state_array/"
 _CORRUPT = "is truncated, corrupted or not a hamgrav"
-_NPZ_ERRORS = (OSError, EOFError, KeyError, IndexError, ValueError, TypeError, zipfile.BadZipFile)
+_NPZ_ERRORS = (*READ_ERRORS, EOFError, zipfile.BadZipFile)
+_FIX = "fit the model again"
 
 
 class ModelFileError(DatasetError):
@@ -105,7 +114,7 @@ def _write_history(group: h5py.Group, history: dict) -> None:
             raise TypeError(f"history keys must be strings, got {name!r}")
         arr = _numeric_array(value)
         if arr is not None and name not in ("", ".") and "/" not in name:
-            group[name] = arr
+            write_array(group, name, arr)
         else:
             other[name] = value
     group.attrs["names"] = json.dumps(list(history))
@@ -138,11 +147,16 @@ def save_model(fitted: FittedModel, path: str | os.PathLike) -> Path:
         "prior": _dumps("prior", fitted.prior),
         "solver": _dumps("solver", fitted.solver),
         "stages": _dumps("stages", fitted.stages),
+        "training": _dumps("training", fitted.training),
     }
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs.update(attrs)
-        f["params"] = params
-        _write_history(f.create_group("history"), fitted.history)
+    if not np.all(np.isfinite(params)):
+        raise ValueError("cannot save the model: its parameters are not all finite")
+    with atomic_path(path) as tmp:
+        with create(tmp) as f:
+            f.attrs.update(attrs)
+            write_array(f, "params", params)
+            _write_history(f.create_group("history"), fitted.history)
+        seal(tmp)
     return path
 
 
@@ -167,10 +181,23 @@ def _read_history(group: h5py.Group) -> dict:
     return history
 
 
-def _read_model(f: h5py.File) -> FittedModel:
+def _positive(f: h5py.File, name: str) -> float:
+    value = float(_attr(f, name))
+    if not (math.isfinite(value) and value > 0):
+        raise ModelFileError(f"attribute {name!r} must be a finite number > 0, got {value}")
+    return value
+
+
+def _read_model(f: h5py.File, path: Path) -> FittedModel:
+    if "format" not in f.attrs:
+        raise ModelFileError(
+            f"{path} is an HDF5 file but not a hamgrav model file (it has no 'format' "
+            "attribute); pass a file written by 'hamgrav fit'"
+        )
     fmt = _attr(f, "format")
     if fmt != MODEL_FORMAT:
-        raise ModelFileError(f"not a hamgrav model file (format {fmt!r})")
+        hint = " (an arcs file? pass it with --arcs)" if fmt == "hamgrav-arcs" else ""
+        raise ModelFileError(f"not a hamgrav model file (format {fmt!r}){hint}")
     version = int(_attr(f, "format_version"))
     if version > MODEL_FORMAT_VERSION:
         raise ModelFileError(
@@ -189,28 +216,50 @@ def _read_model(f: h5py.File) -> FittedModel:
             f"file inconsistent: the stored model rebuilds to structure {model.key()!r}, "
             f"but the file records {stored_key!r}"
         )
-    if "params" not in f:
+    if not isinstance(f.get("params"), h5py.Dataset):
         raise ModelFileError("dataset 'params' is missing")
-    params = np.asarray(f["params"][()], dtype=float)
+    raw = np.asarray(f["params"][()])
+    if raw.dtype.kind not in "iuf":
+        raise ModelFileError(f"dataset 'params' holds {raw.dtype}, expected real numbers")
+    params = raw.astype(float)
     per_trajectory = bool(
         _attr(f, "estimate_srp" if version == 1 else "estimate_trajectory_params")
     )
     problem = _params_problem(model, params, per_trajectory)
     if problem:
         raise ModelFileError(f"file inconsistent: {problem}")
-    return FittedModel(
+    origin = np.asarray(_attr(f, "body_origin_m"), dtype=float)
+    if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+        raise ModelFileError(f"attribute 'body_origin_m' must be 3 finite numbers, got {origin}")
+    training = json.loads(_attr(f, "training")) if "training" in f.attrs else {}
+    dicts = {k: json.loads(_attr(f, k)) for k in ("prior", "solver")}
+    stages = json.loads(_attr(f, "stages"))
+    if not (all(isinstance(v, dict) for v in (*dicts.values(), training))):
+        raise ModelFileError("attributes 'prior', 'solver' and 'training' must hold JSON objects")
+    if not isinstance(stages, list):
+        raise ModelFileError("attribute 'stages' must hold a JSON list")
+    if not isinstance(f.get("history"), h5py.Group):
+        raise ModelFileError("group 'history' is missing")
+    fitted = FittedModel(
         model=model,
         params=params,
         body_name=str(_attr(f, "body_name")),
-        gm_m3_s2=float(_attr(f, "gm_m3_s2")),
-        spin_period_s=float(_attr(f, "spin_period_s")),
-        body_origin_m=tuple(float(v) for v in _attr(f, "body_origin_m")),
+        gm_m3_s2=_positive(f, "gm_m3_s2"),
+        spin_period_s=_positive(f, "spin_period_s"),
+        body_origin_m=tuple(float(v) for v in origin),
         estimate_trajectory_params=per_trajectory,
-        prior=json.loads(_attr(f, "prior")),
-        solver=json.loads(_attr(f, "solver")),
         history=_read_history(f["history"]),
-        stages=json.loads(_attr(f, "stages")),
+        stages=stages,
+        training=training,
+        **dicts,
     )
+    bad = ~np.isfinite(params)
+    if bad.any():
+        raise ModelFileError(
+            f"dataset 'params' holds {int(bad.sum())} non-finite values (NaN or inf, the "
+            f"first at index {int(np.flatnonzero(bad)[0])}); {_FIX}"
+        )
+    return fitted
 
 
 def load_model(
@@ -226,15 +275,16 @@ def load_model(
     naming the file.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ModelFileError(f"model file not found: {path}")
     try:
-        with h5py.File(path, "r") as f:
-            fitted = _read_model(f)
-    except ModelFileError as exc:
-        raise ModelFileError(f"model file {path}: {exc}") from None
-    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:  # JSON: ValueError
-        raise ModelFileError(f"{path} {_CORRUPT} model file ({exc}); fit the model again") from None
+        with open_for_reading(path, "model file", _FIX, ModelFileError, MODEL_FORMAT) as f:
+            fitted = _read_model(f, path)
+    except DatasetError as exc:
+        text = str(exc)
+        if ";" not in text:  # what is wrong, then how to fix it
+            text = f"{text}; {_FIX}"
+        raise ModelFileError(text if str(path) in text else f"model file {path}: {text}") from None
+    except READ_ERRORS as exc:  # JSON: ValueError
+        raise ModelFileError(f"{path} {_CORRUPT} model file ({exc}); {_FIX}") from None
     if expect_body is not None and fitted.body_name != expect_body:
         raise ModelFileError(
             f"model file {path} was fitted for body {fitted.body_name!r}, not "
@@ -255,11 +305,15 @@ def checkpoint_path_for(model_path: str | os.PathLike) -> Path:
     return model_path.with_name(model_path.name + ".checkpoint.npz")
 
 
-def save_checkpoint(path: str | os.PathLike, params, state: dict) -> Path:
+def save_checkpoint(
+    path: str | os.PathLike, params, state: dict, identity: dict | None = None
+) -> Path:
     """Write the parameters and solver ``state`` of an interrupted fit (atomically).
 
     ``state`` maps string keys to plain JSON-able data or to numpy arrays / scalars (stored
     as separate entries, exactly); :func:`load_checkpoint` returns what was saved.
+    ``identity`` (plain data) describes the fit that writes it (its arcs' digest, model,
+    solver and settings): :func:`load_checkpoint` refuses to resume another fit from it.
     """
     path = Path(path)
     entries = {"params": np.asarray(params)}
@@ -285,6 +339,7 @@ def save_checkpoint(path: str | os.PathLike, params, state: dict) -> Path:
         "arrays": arrays,
         "scalars": scalars,
         "state": plain,
+        "identity": identity,
     }
     # json.dumps without a numpy fallback: plain data must come back as it went in
     try:
@@ -296,9 +351,54 @@ def save_checkpoint(path: str | os.PathLike, params, state: dict) -> Path:
     return path
 
 
-def load_checkpoint(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
-    """Read ``(params, state)`` written by :func:`save_checkpoint`."""
+def _plain_json(value):
+    """``value`` as it reads back from JSON (tuples become lists)."""
+    return json.loads(json.dumps(value))
+
+
+def _check_identity(path: Path, stored: dict | None, state: dict, expect: dict) -> None:
+    """Refuse a checkpoint written by another fit than ``expect`` describes."""
+    fix = f"resume with the command that wrote it, or delete {path} to start the fit afresh"
+    if stored is None:  # written before checkpoints recorded their fit
+        solver = state.get("solver")
+        if solver is not None and expect.get("solver") not in (None, solver):
+            raise ModelFileError(
+                f"checkpoint {path} was written by the {solver!r} solver, this fit runs "
+                f"{expect['solver']!r}; {fix}"
+            )
+        warnings.warn(
+            f"checkpoint {path} does not record which fit wrote it (older hamgrav): resuming "
+            "it on trust; it must come from the same command",
+            HamgravWarning,
+            stacklevel=3,
+        )
+        return
+    have, want = _flat(stored), _flat(_plain_json(expect))
+    differ = [k for k in sorted(set(have) | set(want)) if have.get(k) != want.get(k)]
+    if have.get("solver") != want.get("solver"):  # then every setting differs: name the solver
+        differ = [k for k in differ if not k.startswith("solver_settings.")]
+    if differ:
+        what = "; ".join(f"{k} {have.get(k)!r} (this command: {want.get(k)!r})" for k in differ)
+        raise ModelFileError(f"checkpoint {path} belongs to another fit: {what}; {fix}")
+
+
+def _flat(identity: dict) -> dict:
+    """Nested settings as dotted keys, so that a mismatch names the one setting that differs."""
+    out = {}
+    for key, value in identity.items():
+        if isinstance(value, dict):
+            out.update({f"{key}.{k}": v for k, v in _flat(value).items()})
+        else:
+            out[key] = value
+    return out
+
+
+def load_checkpoint(path: str | os.PathLike, expect: dict | None = None) -> tuple[np.ndarray, dict]:
+    """Read ``(params, state)`` written by :func:`save_checkpoint`; with ``expect`` (the
+    ``identity`` of the fit that resumes), refuse a checkpoint of another fit."""
     path = Path(path)
+    if path.is_dir():
+        raise ModelFileError(f"checkpoint {path} is a folder; delete it or choose another -o")
     if not path.is_file():
         raise ModelFileError(f"checkpoint file not found: {path}")
     try:
@@ -316,7 +416,17 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
             stored.update({k: data[_ARRAY_PREFIX + k][()] for k in header["scalars"]})
             stored.update(header["state"])
             state = {k: stored[k] for k in header["keys"]}
+            identity = header.get("identity")
+        if params.ndim != 1 or params.dtype.kind not in "iuf":
+            raise ModelFileError(f"params must be a vector of numbers, got {params.dtype}")
+        if not np.all(np.isfinite(params)):
+            raise ModelFileError("params are not all finite (NaN or inf)")
+        if expect is not None:
+            _check_identity(path, identity, state, expect)
     except ModelFileError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ModelFileError(f"checkpoint {path}: {exc}") from None
         raise ModelFileError(f"checkpoint {path}: {exc}") from None
     except _NPZ_ERRORS as exc:
         raise ModelFileError(

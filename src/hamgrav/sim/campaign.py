@@ -25,6 +25,7 @@ Example::
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -79,17 +80,20 @@ class Campaign:
         unknown = set(data) - _TOP_KEYS
         if unknown:
             fail(f"unknown key(s) {sorted(unknown)}; allowed: {sorted(_TOP_KEYS)}")
-        if "body" not in data:
+        if not isinstance(data.get("body"), str) or not data["body"].strip():
             fail("'body' is required (a catalogue name or 'synthetic')")
         interior = data.get("interior", "uniform")
-        if interior not in INTERIORS:
+        if not isinstance(interior, str) or interior not in INTERIORS:
             fail(f"interior {interior!r} is not one of {', '.join(INTERIORS)}")
         frame = data.get("frame", "centre-of-mass")
-        if frame not in TRUTH_FRAMES:
+        if not isinstance(frame, str) or frame not in TRUTH_FRAMES:
             fail(f"frame {frame!r} is not one of {', '.join(TRUTH_FRAMES)}")
         contrast = data.get("contrast", 2.0)
-        if isinstance(contrast, bool) or not isinstance(contrast, int | float) or contrast <= 0:
-            fail(f"contrast must be a positive number (head density over the rest): {contrast!r}")
+        if not _is_number(contrast) or not 0 < contrast <= 1e3:
+            fail(
+                f"contrast must be a positive number (head density over the rest, at most "
+                f"1000): {contrast!r}"
+            )
         orbits = data.get("orbits")
         if not isinstance(orbits, dict):
             fail("an [orbits] table is required")
@@ -98,16 +102,34 @@ class Campaign:
             fail(f"unknown key(s) in [orbits] {sorted(unknown)}; allowed: {sorted(_ORBIT_KEYS)}")
         try:
             if "families" in orbits:
-                families = [OrbitFamily(float(r), float(i)) for r, i in orbits["families"]]
+                pairs = orbits["families"]
+                if not isinstance(pairs, list) or not pairs or not all(_is_pair(p) for p in pairs):
+                    fail(
+                        "[orbits] families must be a non-empty list of [radius R_B, "
+                        f"inclination deg] pairs of numbers, got {pairs!r}"
+                    )
+                families = [OrbitFamily(float(r), float(i)) for r, i in pairs]
             else:
-                families = orbit_grid(
-                    int(orbits.get("count", 16)),
-                    tuple(map(float, orbits.get("radius_rb", (1.2, 2.0)))),
-                    tuple(map(float, orbits.get("inclination_deg", (10.0, 80.0)))),
-                )
-        except (TypeError, ValueError) as exc:
-            fail(f"bad [orbits] entry: {exc}")
+                count = orbits.get("count", 16)
+                if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= 1000:
+                    fail(f"[orbits] count must be an integer in [1, 1000], got {count!r}")
+                ranges = {}
+                for key, default in (("radius_rb", (1.2, 2.0)), ("inclination_deg", (10, 80))):
+                    value = orbits.get(key, list(default))
+                    if not _is_pair(value) or value[0] > value[1]:
+                        fail(
+                            f"[orbits] {key} must be a range [low, high] of two numbers with "
+                            f"low <= high, got {value!r}"
+                        )
+                    ranges[key] = (float(value[0]), float(value[1]))
+                families = orbit_grid(count, ranges["radius_rb"], ranges["inclination_deg"])
+        except CampaignError:
+            raise
+        except InputError as exc:  # from OrbitFamily / orbit_grid
+            fail(f"[orbits]: {exc}")
         tracking = data.get("tracking", {})
+        if not isinstance(tracking, dict):
+            fail("[tracking] must be a table")
         unknown = set(tracking) - _TRACKING_KEYS
         if unknown:
             fail(
@@ -115,10 +137,16 @@ class Campaign:
             )
         try:
             tracking_config = TrackingConfig(**tracking)
-            n_mascons = int(data.get("n_mascons", DEFAULT_TRUTH_MASCONS))
-            seed = int(data.get("seed", 0))
-        except (TypeError, ValueError) as exc:
+        except InputError as exc:
             fail(str(exc))
+        n_mascons = data.get("n_mascons", DEFAULT_TRUTH_MASCONS)
+        if isinstance(n_mascons, bool) or not isinstance(n_mascons, int):
+            fail(f"n_mascons must be an integer, got {n_mascons!r}")
+        if not 10 <= n_mascons <= MAX_TRUTH_MASCONS:
+            fail(f"n_mascons must lie in [10, {MAX_TRUTH_MASCONS}], got {n_mascons}")
+        seed = data.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            fail(f"seed must be an integer >= 0, got {seed!r}")
         return cls(
             body=str(data["body"]),
             interior=interior,
@@ -142,6 +170,21 @@ class Campaign:
             "orbits": {"families": [[f.radius_rb, f.inclination_deg] for f in self.families]},
             "tracking": {f.name: getattr(self.tracking, f.name) for f in fields(TrackingConfig)},
         }
+
+
+#: Most truth mascons a campaign may ask for (the paper's largest truth has a few thousand;
+#: every field evaluation costs points x mascons).
+MAX_TRUTH_MASCONS = 100_000
+
+
+def _is_number(value) -> bool:
+    """A finite real number that is not a bool (TOML gives int or float)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _is_pair(value) -> bool:
+    """A list of two finite numbers."""
+    return isinstance(value, list) and len(value) == 2 and all(_is_number(v) for v in value)
 
 
 def load_campaign(path: str | Path) -> Campaign:

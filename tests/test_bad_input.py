@@ -1,0 +1,344 @@
+"""Bad input gets a clear one-line error (status 2), never a traceback and never a wrong
+answer: one case per class of the failures found by trying to break hamgrav."""
+
+import json
+import os
+from dataclasses import replace
+
+import h5py
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hamgrav.cli import app
+from hamgrav.core.mascons import MasconSet
+from hamgrav.errors import DatasetError, HamgravWarning
+from hamgrav.io.arcs import load_arcs, save_arcs
+from hamgrav.io.models import checkpoint_path_for, load_model, save_checkpoint
+
+runner = CliRunner()
+
+
+def _error(result, *needles):
+    """The run failed as a user error: status 2, one 'error:' line holding every needle."""
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    text = " ".join(result.output.split())
+    assert "Traceback" not in result.output
+    for needle in needles:
+        assert needle in text, (needle, text)
+    return text
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, small_arcs):
+    """An arcs file and an SH 2 model fitted to it (absolute paths)."""
+    folder = tmp_path_factory.mktemp("bad-input")
+    arcs = save_arcs(small_arcs, folder / "arcs.h5")
+    model = folder / "sh2.h5"
+    result = runner.invoke(app, ["fit", str(arcs), "--model", "sh:2", "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    return arcs, model
+
+
+def _rewrite(path, name, change):
+    """Change dataset ``name`` of an HDF5 file in place, as a corrupting tool would."""
+    with h5py.File(path, "a") as f:
+        data = change(f[name][()])
+        del f[name]
+        f[name] = data
+
+
+# -------------------------------------------------------------------- 1. non-finite numbers
+def test_nan_parameter_is_refused_not_evaluated(files, tmp_path, old_hdf5):
+    _, model = files
+    bad = tmp_path / "nan.h5"
+    bad.write_bytes(model.read_bytes())
+
+    def nan_first(p):
+        p[0] = np.nan
+        return p
+
+    _rewrite(bad, "params", nan_first)
+    _error(runner.invoke(app, ["evaluate", str(bad), "--json"]), str(bad), "corrupted")
+    with old_hdf5(bad):  # as an older hamgrav wrote it (no checksum): the values speak
+        pass
+    text = _error(runner.invoke(app, ["evaluate", str(bad), "--json"]), str(bad))
+    assert "non-finite values" in text and "fit the model again" in text
+
+
+def test_flipped_byte_in_arcs_is_refused(files, tmp_path):
+    arcs, _ = files
+    data = bytearray(arcs.read_bytes())
+    with h5py.File(arcs) as f:  # flip one byte inside the states' data
+        offset = f["states"].id.get_offset() or f["states"].id.get_chunk_info(0).byte_offset
+    data[offset + 100] ^= 0x01
+    bad = tmp_path / "flipped.h5"
+    bad.write_bytes(bytes(data))
+    _error(
+        runner.invoke(app, ["fit", str(bad), "--model", "sh:2", "-o", str(tmp_path / "m.h5")]),
+        str(bad),
+        "corrupted",
+    )
+    assert not (tmp_path / "m.h5").exists()
+
+
+def test_huge_state_is_refused_before_propagation(small_arcs, tmp_path):
+    states = small_arcs.states.copy()
+    states[0, 0, 0] = 1e182
+    path = save_arcs(replace(small_arcs, states=states), tmp_path / "huge.h5")
+    with pytest.raises(DatasetError, match="huge.h5: dataset 'states' holds a state component"):
+        load_arcs(path)
+
+
+# ------------------------------------------------------------- 2. identity and consistency
+def test_checkpoint_of_another_fit_is_refused(files, tmp_path):
+    arcs, _ = files
+    out = tmp_path / "lm.h5"
+    args = ["fit", str(arcs), "--model", "network", "--hidden", "4", "--solver", "lm"]
+    identity = {"solver": "adam", "solver_settings": {"name": "adam", "steps": 30}}
+    save_checkpoint(checkpoint_path_for(out), np.zeros(21), {"solver": "adam", "step": 3}, identity)
+    _error(
+        runner.invoke(app, [*args, "--resume", "-o", str(out)]),
+        "belongs to another fit:",
+        "solver 'adam' (this command: 'levenberg-marquardt')",
+    )
+    # a fresh fit does not silently delete the checkpoint
+    _error(runner.invoke(app, [*args, "-o", str(out)]), "a checkpoint of an interrupted fit")
+    assert checkpoint_path_for(out).exists() and not out.exists()
+
+
+def test_checkpoint_of_other_arcs_or_steps_is_refused(files, small_arcs, tmp_path, monkeypatch):
+    from hamgrav.io import models
+
+    arcs, _ = files
+    out = tmp_path / "nn.h5"
+    args = ["fit", str(arcs), "--model", "network", "--hidden", "4", "-o", str(out)]
+    real_save = models.save_checkpoint
+
+    def save_then_interrupt(*a):
+        real_save(*a)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(models, "save_checkpoint", save_then_interrupt)
+    result = runner.invoke(app, [*args, "--steps", "30"])
+    assert result.exit_code == 130 and "last checkpoint is kept" in result.output
+    monkeypatch.setattr(models, "save_checkpoint", real_save)
+    _error(
+        runner.invoke(app, [*args, "--steps", "40", "--resume"]),
+        "solver_settings.steps 30 (this command: 40)",
+    )
+    other = save_arcs(small_arcs.subset(range(1, small_arcs.n_arcs)), tmp_path / "other.h5")
+    result = runner.invoke(app, [*args[:1], str(other), *args[2:], "--steps", "30", "--resume"])
+    _error(result, "belongs to another fit: arcs_sha256")
+
+
+def test_evaluate_from_another_folder_uses_the_fits_arcs(files, small_arcs, tmp_path, monkeypatch):
+    arcs, _ = files
+    fit_dir, other_dir = tmp_path / "fit", tmp_path / "elsewhere"
+    fit_dir.mkdir()
+    other_dir.mkdir()
+    (fit_dir / "arcs.h5").write_bytes(arcs.read_bytes())
+    monkeypatch.chdir(fit_dir)
+    result = runner.invoke(app, ["fit", "arcs.h5", "--model", "sh:2", "-o", "m.h5"])
+    assert result.exit_code == 0, result.output
+    assert load_model("m.h5").training["arcs_file"] == str(fit_dir / "arcs.h5")
+    here = runner.invoke(app, ["evaluate", "m.h5", "--json"])
+    assert here.exit_code == 0, here.output
+    # another truth lies in the other folder under the same name: not used, and refused
+    moved = MasconSet(small_arcs.truth.positions * 1.01, small_arcs.truth.masses)
+    save_arcs(replace(small_arcs, truth=moved), other_dir / "arcs.h5")
+    monkeypatch.chdir(other_dir)
+    there = runner.invoke(app, ["evaluate", str(fit_dir / "m.h5"), "--json"])
+    assert there.exit_code == 0, there.output
+    assert json.loads(there.stdout)["field_error"] == json.loads(here.stdout)["field_error"]
+    _error(
+        runner.invoke(app, ["evaluate", str(fit_dir / "m.h5"), "--arcs", "arcs.h5"]),
+        "hold another truth than the one model",
+    )
+    save_arcs(replace(small_arcs, body_origin_m=(1.0, 0.0, 0.0)), other_dir / "shifted.h5")
+    _error(
+        runner.invoke(app, ["evaluate", str(fit_dir / "m.h5"), "--arcs", "shifted.h5"]),
+        "in a frame with origin (1.0, 0.0, 0.0) m",
+    )
+
+
+def test_model_without_training_record_warns(files, tmp_path, old_hdf5):
+    _, model = files
+    old = tmp_path / "old.h5"
+    old.write_bytes(model.read_bytes())
+    with old_hdf5(old) as f:
+        del f.attrs["training"]
+    with pytest.warns(HamgravWarning, match="old.h5 has no hamgrav checksum"):
+        assert load_model(old).training == {}
+    result = runner.invoke(app, ["evaluate", str(old), "--json"])
+    assert result.exit_code == 0, result.output
+    assert "does not record the truth it was fitted against" in result.output
+
+
+# ------------------------------------------------------------------------------ 3. outputs
+@pytest.mark.parametrize("kind", ["folder", "symlink", "device", "missing-folder"])
+def test_outputs_checked_before_the_computation(files, tmp_path, kind):
+    arcs, model = files
+    target = {
+        "folder": tmp_path,
+        "symlink": tmp_path / "link.h5",
+        "device": "/dev/null",
+        "missing-folder": tmp_path / "nope" / "out.h5",
+    }[kind]
+    if kind == "symlink":
+        target.symlink_to(model)
+    message = {
+        "folder": "is a folder; give a file name",
+        "symlink": "is a symbolic link",
+        "device": "is not a regular file",
+        "missing-folder": "does not exist; create it first",
+    }[kind]
+    _error(runner.invoke(app, ["fit", str(arcs), "--model", "sh:2", "-o", str(target)]), message)
+    pool = tmp_path / "pool.toml"
+    pool.write_text('body = "synthetic"\n[orbits]\ncount = 2\n')
+    _error(
+        runner.invoke(app, ["select", str(model), "--pool", str(pool), "-o", str(target)]), message
+    )
+    if kind == "symlink":
+        assert target.is_symlink() and os.readlink(target) == str(model)
+
+
+# ---------------------------------------------------------------- 4. meaningless values
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--steps", "0"], "--steps must be an integer >= 1, got 0"),
+        (["--steps", "-3"], "--steps must be an integer >= 1, got -3"),
+        (["--hidden", "4.7"], "--hidden must be comma-separated integers >= 1, got '4.7'"),
+        (["--hidden", "0"], "--hidden must be an integer >= 1, got 0"),
+        (["--learning-rate", "-0.1"], "--learning-rate must be a finite number > 0"),
+        (["--learning-rate", "inf"], "--learning-rate must be a finite number > 0, got inf"),
+        (["--model", "sh:4", "--kaula", "-1e-6"], "--kaula (one weight ALPHA >= 0, or 'scan')"),
+        (["--model", "sh:4", "--kaula", "nan"], "must be a finite number >= 0, got nan"),
+        (["--seed", "-1"], "--seed must be an integer >= 0"),
+        (["--solver", "sgd"], "--solver must be 'adam' or 'lm'"),
+        (["--model", "sh:400"], "--model must be one of"),
+    ],
+)
+def test_fit_options_checked_first(files, tmp_path, args, message):
+    arcs, _ = files
+    out = tmp_path / "m.h5"
+    _error(runner.invoke(app, ["fit", str(arcs), *args, "-o", str(out)]), message)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--shells", "0"], "--shells (radii r / R_B) must be a finite number >= 1, got 0.0"),
+        (["--shells", "-1.2"], "must be a finite number >= 1, got -1.2"),
+        (["--shells", ""], "--shells (radii r / R_B) needs at least one number"),
+        (["--altitude", "-5000"], "--altitude (metres above the surface) must be a finite"),
+        (["--altitude", "nan"], "must be a finite number >= 0, got nan"),
+    ],
+)
+def test_evaluate_options_checked_first(files, args, message):
+    _error(runner.invoke(app, ["evaluate", str(files[1]), *args]), message)
+
+
+@pytest.mark.parametrize(
+    "orbits, tracking, message",
+    [
+        ("count = 2.7", "", "[orbits] count must be an integer in [1, 1000], got 2.7"),
+        ("families = [[1000.0, 30.0]]", "", "radius_rb must be a finite number in (1, 20]"),
+        ("families = [[0.5, 30.0]]", "", "radius_rb must be a finite number in (1, 20]"),
+        ("radius_rb = [2.0, 1.5]", "", "must be a range [low, high] of two numbers"),
+        ("count = 2", "velocity_noise_ratio = -0.1", "velocity_noise_ratio must be a finite"),
+        ("count = 2", "arcs_per_orbit = 2.5", "arcs_per_orbit must be an integer in [1, 10000]"),
+        ("count = 2", "sigma_r_m = nan", "sigma_r_m must be a finite number in [0, 10000]"),
+        ("count = 2", "escape_factor = 0.5", "escape_factor must be a finite number in (1, 1000]"),
+    ],
+)
+def test_campaign_values_checked(tmp_path, orbits, tracking, message):
+    toml = tmp_path / "c.toml"
+    toml.write_text(f'body = "synthetic"\n[orbits]\n{orbits}\n[tracking]\n{tracking}\n')
+    _error(runner.invoke(app, ["simulate", str(toml), "-o", str(tmp_path / "a.h5")]), message)
+    assert not (tmp_path / "a.h5").exists()
+
+
+def test_more_parameters_than_observations_warns(small_arcs, tmp_path, monkeypatch):
+    from hamgrav.fit.adam import Adam
+
+    def stop(*args, **kwargs):  # the warning comes before the solver: no need to run it
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Adam, "solve", stop)
+    few = save_arcs(small_arcs.subset([0]), tmp_path / "one.h5")
+    args = ["fit", str(few), "--model", "network", "--steps", "1", "-o", str(tmp_path / "m.h5")]
+    # one arc, too few to hold one out: 39 samples (after the anchor) x 6 = 234 scalars
+    small = runner.invoke(app, [*args, "--hidden", "8"])  # 49 parameters
+    assert small.exit_code == 130 and "warning" not in small.output
+    large = runner.invoke(app, [*args, "--hidden", "64"])  # 321 parameters
+    assert large.exit_code == 130
+    assert "warning: 321 parameters but only 234 observed scalars in the 1 training arcs" in (
+        " ".join(large.output.split())
+    )
+
+
+# ----------------------------------------------------------------------- 5. vague errors
+def test_foreign_hdf5_and_folders_named(tmp_path):
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as f:
+        f["x"] = np.arange(3)
+    _error(
+        runner.invoke(app, ["fit", str(foreign), "-o", str(tmp_path / "m.h5")]),
+        f"{foreign} is an HDF5 file but not a hamgrav arcs file",
+        "pass a file written by 'hamgrav simulate'",
+    )
+    _error(
+        runner.invoke(app, ["evaluate", str(tmp_path)]), f"{tmp_path} is a folder; pass the model"
+    )
+
+
+def test_bodies_says_why_only_synthetic(tmp_path, monkeypatch):
+    monkeypatch.setenv("HAMGRAV_BODIES", str(tmp_path / "nowhere"))
+    result = runner.invoke(app, ["bodies"])
+    assert result.exit_code == 0 and result.stdout.split() == ["synthetic"]
+    assert "warning: body data folder" in result.output and "does not exist" in result.output
+    monkeypatch.setenv("HAMGRAV_BODIES", str(tmp_path))
+    (tmp_path / "catalogue.json").write_text("{not json")
+    result = runner.invoke(app, ["bodies"])
+    assert "catalogue.json is not valid JSON" in " ".join(result.output.split())
+
+
+# ---------------------------------------------------------------------------- 6. interrupts
+def test_interrupt_before_the_first_checkpoint_says_so(files, tmp_path, monkeypatch):
+    from hamgrav.fit import estimator
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(estimator.GravityEstimator, "fit", interrupted)
+    out = tmp_path / "m.h5"
+    result = runner.invoke(app, ["fit", str(files[0]), "--model", "sh:2", "-o", str(out)])
+    assert result.exit_code == 130
+    assert "interrupted before the first checkpoint; nothing was saved" in result.output
+    assert not checkpoint_path_for(out).exists() and "Traceback" not in result.output
+    monkeypatch.setattr("hamgrav.io.arcs.load_arcs", interrupted)
+    result = runner.invoke(app, ["fit", str(files[0]), "--model", "sh:2", "-o", str(out)])
+    assert result.exit_code == 130 and "interrupted; no file is left half-written" in result.output
+
+
+def test_ctrl_c_while_starting_is_held_and_reported(capsys):
+    """A Ctrl-C while the libraries load is held (some libraries swallow KeyboardInterrupt
+    in their imports) and ends the command in one line with status 130."""
+    import signal
+
+    from hamgrav.cli import _DeferInterrupt
+
+    with pytest.raises(SystemExit) as info, _DeferInterrupt():
+        try:  # what a library importing its optional dependencies does
+            os.kill(os.getpid(), signal.SIGINT)
+        except BaseException:
+            pass
+    assert info.value.code == 130
+    assert capsys.readouterr().err == "interrupted while starting; nothing was done\n"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with _DeferInterrupt():  # no Ctrl-C: nothing happens
+        pass
