@@ -716,3 +716,61 @@ def test_fuzz_reference_files_read_back(tmp_path):
     params, _ = load_checkpoint(path, expect={"solver": "adam"})
     assert np.array_equal(params, FITTED.params)
     assert _same_arcs(replace(ARCS), ARCS) and not _same_arcs(replace(ARCS, seed=4), ARCS)
+
+
+# ------------------------------------------------------------------------------ OEM tracking
+@pytest.fixture(scope="module")
+def oem_original(small_arcs, synthetic, tmp_path_factory):
+    """One exported OEM file (the first trajectory of the small campaign) and its body."""
+    from hamgrav.io.oem import export_oem_by_trajectory
+
+    paths = export_oem_by_trajectory(small_arcs, tmp_path_factory.mktemp("oem"))
+    return paths[0].read_text(), synthetic
+
+
+def _import_outcome(text_or_bytes, body):
+    """Import one damaged OEM file: None (refused with a one-line error naming the file) or
+    the arcs, which must then be finite tracking data."""
+    from hamgrav.io.oem_import import import_oem
+
+    path = _fresh_folder() / "track.oem"
+    if isinstance(text_or_bytes, bytes):
+        path.write_bytes(text_or_bytes)
+    else:
+        path.write_text(text_or_bytes)
+    value, _, error = _outcome(lambda p: import_oem([p], body), path)
+    if error is not None:
+        return None
+    assert np.all(np.isfinite(value.times)) and np.all(np.isfinite(value.states))
+    assert np.all(np.diff(value.times, axis=1) > 0)
+    assert np.max(np.abs(value.states)) <= MAX_STATE
+    return value
+
+
+@settings(FUZZ, max_examples=150)
+@given(data=st.data())
+def test_fuzz_oem_reader(oem_original, data):
+    """Damaged OEM text is refused or read as finite, ordered tracking data. A text format has
+    no checksum: a changed digit inside a number reads as another number, which no reader can
+    tell from a real one (the data-line checks below are what it can tell)."""
+    text, body = oem_original
+    raw = text.encode()
+    kind = data.draw(st.sampled_from(["bytes", "value", "foreign"]))
+    CASES[f"oem {kind}"] += 1
+    if kind == "bytes":
+        _import_outcome(_damage(raw, data.draw(byte_damage(len(raw)))), body)
+        return
+    if kind == "foreign":
+        foreign = data.draw(st.sampled_from(["", "{}", "CCSDS_OEM_VERS = 2.0\n", "\x00" * 64]))
+        assert _import_outcome(foreign, body) is None
+        return
+    # a number of one data line replaced by a non-finite or absurd value: always refused
+    lines = text.splitlines()
+    data_rows = [i for i, line in enumerate(lines) if line[:4].isdigit() and "T" in line[:12]]
+    row = data.draw(st.sampled_from(data_rows))
+    column = data.draw(st.integers(1, 6))
+    bad = data.draw(st.sampled_from(["nan", "inf", "-inf", "1e182", "NaN"]))
+    fields = lines[row].split()
+    fields[column] = bad
+    lines[row] = " ".join(fields)
+    assert _import_outcome("\n".join(lines) + "\n", body) is None

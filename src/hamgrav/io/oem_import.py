@@ -47,6 +47,7 @@ from ..bodies.rotation import RotationModel
 from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
 from ..errors import DatasetError, InputError
+from .arcs import MAX_STATE
 from .oem import REF_FRAME as HAMGRAV_FRAME
 
 __all__ = ["import_oem", "BODY_FIXED_FRAMES", "INERTIAL_FRAMES"]
@@ -281,6 +282,16 @@ def import_oem(
             state = np.concatenate([q, units.to_velocity(p_body)], axis=1)
         else:
             state = units.state_to_canonical(pos, vel)
+        with np.errstate(invalid="ignore"):
+            largest = float(np.max(np.abs(state)))
+        if not largest <= MAX_STATE:  # also NaN from an overflow in the conversion
+            raise DatasetError(
+                f"{path}: a state of {largest:.3g} synchronous radii (canonical) is not tracking "
+                f"of body {name!r} (at most {MAX_STATE:g}); check the file's units (km, km/s) "
+                "and CENTER_NAME"
+            )
+        if np.any(np.diff(seconds) <= 0):
+            raise DatasetError(f"{path}: the epochs of a segment do not increase; fix its order")
         for run in _runs(seconds, max_gap_s):
             n = run.stop - run.start
             m = n if samples is None else int(samples)
