@@ -454,7 +454,8 @@ def fit(
     model: Annotated[
         str,
         typer.Option(
-            help="'network-best' (the mean of 3 networks fitted by LM: recommended), 'network' "
+            help="'network-best' (the mean of 3 networks fitted by LM with a harmonic penalty: "
+            "recommended), 'network' "
             "(the paper's Adam protocol) or 'sh:L'."
         ),
     ] = "network-best",
