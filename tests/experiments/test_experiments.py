@@ -253,7 +253,8 @@ def test_deep_tiny(tmp_path):
         "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
         "--stages", "2", "--sh-degrees", "2,3", "--map-degrees", "2,3", "--hidden", "4",
         "--lm-iterations", "3", "--warm-iterations", "2", "--altitude-m", "30",
-        "--map-points", "31", "-o", str(out),
+        "--map-points", "31", "--descents", "2", "--descent-degrees", "3",
+        "--random-orders", "2", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
