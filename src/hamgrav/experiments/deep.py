@@ -82,6 +82,7 @@ __all__ = [
     "sample_radii",
     "evaluate",
     "deep_bins",
+    "join_arcs",
     "d_optimal_campaign",
 ]
 
@@ -156,7 +157,8 @@ class DeepExperimentConfig(CampaignConfig):
         "and assimilated after the last stage (0: off).",
     )
     descent_degrees: tuple[int, ...] = option(
-        (8, 12), "SH degrees warm-refitted on the descents with the network (among sh_degrees)."
+        (8, 12),
+        "SH degrees warm-refitted on the descents with the network (among sh_degrees).",
     )
     random_orders: int = option(
         5, "Random arrival orders of the same orbits, network only, seeded by the seed (0: off)."
@@ -197,7 +199,7 @@ class DeepExperimentConfig(CampaignConfig):
             raise InputError("map_extent_rb must be positive and map_points at least 3")
         if self.descents < 0 or self.random_orders < 0:
             raise InputError("descents and random_orders must be >= 0 (0: off)")
-        if set(self.descent_degrees) - set(self.sh_degrees):
+        if self.descents and set(self.descent_degrees) - set(self.sh_degrees):
             raise InputError(
                 f"descent_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"
             )

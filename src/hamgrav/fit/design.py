@@ -17,6 +17,12 @@ A). The D-optimal score of c given the information accumulated so far, L_acc, is
 and the greedy design picks the argmax from a pool, adds its Lambda to L_acc and repeats.
 Log-determinants are taken by Cholesky factorisation.
 
+A candidate can also be an :class:`OrbitPlan`, an orbit already laid out (initial state and
+sample times, e.g. those of a campaign's simulated orbits, :func:`orbit_plans`), predicted
+the same way (:func:`predicted_plan_arcs`); :func:`choose_from_plans` is the greedy choice
+among plans given the information accumulated so far. A network ensemble, whose members are
+fitted each on its own, has block-diagonal information: one block per member, eps per block.
+
 Everything is in canonical units (mu = omega = 1): times in spin periods / 2 pi, lengths in the
 synchronous radius, Lambda in (canonical state units / parameter units)^2.
 """

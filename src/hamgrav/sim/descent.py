@@ -122,7 +122,9 @@ def tracked_descents(
     ``count`` draws are those of a draw of ``count``) and propagated under the truth to
     contact. A descent that does not land, or lands less than one arc's length
     (``samples_per_arc - 1`` times ``cadence_s``) after release, is skipped and the next draw
-    taken (at most ``max_draws``, default ``count + tracking.max_redraws``). Each arc holds
+    taken (at most ``max_draws``, default ``count + tracking.max_redraws``). ``tracking``
+    (default :class:`~hamgrav.sim.tracking.TrackingConfig`) gives the orbital arcs'
+    samples per arc, cadence and noise. Each arc holds
     ``samples_per_arc`` samples ``cadence_s`` [s] apart, the last at the contact time, observed
     with the orbital arcs' noise (sigma_r = ``tracking.sigma_r_m`` [m] per position component,
     sigma_v = omega sigma_r ``velocity_noise_ratio``), noise seeded by (``seed``, 1).
