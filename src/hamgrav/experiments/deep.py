@@ -695,7 +695,14 @@ class DeepExperiment(Experiment):
             seed=ctx.seed,
             escape_factor=tracking.escape_factor,
         )
-        done = list(ctx.mapper(work, units))
+        done = []
+        for unit in ctx.mapper(work, units):  # builtin map: one by one, as each finishes
+            done.append(unit)
+            ctx.say(
+                f"order {len(done)}/{len(units)} ({unit['kind']}): exterior error by stage "
+                + ", ".join(f"{e}" for e in unit["errors"])
+                + f"; {unit['wall_s']:.0f} s"
+            )
         fixed = [s["exterior_error"][NETWORK] for s in stages]
         orders: dict = {"n_orbits": n_orbits, "fixed": fixed}
         random = [d for d in done if d["kind"] == "random"]
