@@ -253,7 +253,8 @@ def test_deep_tiny(tmp_path):
         "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
         "--stages", "2", "--sh-degrees", "2,3", "--map-degrees", "2,3", "--hidden", "4",
         "--lm-iterations", "3", "--warm-iterations", "2", "--altitude-m", "30",
-        "--map-points", "31", "-o", str(out),
+        "--map-points", "31", "--descents", "2", "--descent-degrees", "3",
+        "--random-orders", "2", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -301,8 +302,59 @@ def test_deep_tiny(tmp_path):
     for name in ("geometry.png", "deep_bins.png", "maps.png"):
         assert (out / name).stat().st_size > 1000
         assert f"- `{name}`: " in readme
+    # the descents: two arcs added, the network and SH 3 refitted, bins after for both
+    desc = rep["descents"]
+    assert desc["n"] == 2 and all(r < 1.0 for r in desc["contact_radius_rb"])
+    assert set(desc["fits"]) == set(rep["deep_bins_after_descents"]) == {"sh3", "network-best"}
+    assert all(f["n_arcs"] == 10 and f["warm_started"] for f in desc["fits"].values())
+    for by_bin in rep["deep_bins_after_descents"].values():
+        assert list(by_bin) == labels and all(0.0 < v < 1e6 for v in by_bin.values())
+    after = rep["descents_summary"]["network-best"]
+    assert after["deepest_bin_before"] == net["deepest_bin"]
+    assert (
+        after["deepest_bin_after"] == rep["deep_bins_after_descents"]["network-best"]["0.25-0.45"]
+    )
+    # the orders: two random permutations of the same orbits, D-optimal flies each once
+    orders = rep["orders"]
+    assert orders["n_orbits"] == [2, 4] and orders["fixed"] == [
+        s["exterior_error"]["network-best"] for s in stages
+    ]
+    assert len(orders["random"]) == len(orders["random_orbits"]) == 2
+    for stage_orbits, curve in zip(orders["random_orbits"], orders["random"], strict=True):
+        assert [len(g) for g in stage_orbits] == [2, 2] and len(curve) == 2
+        assert sorted(k for g in stage_orbits for k in g) == [0, 1, 2, 3]
+    flown = [p["orbit"] for stage in rep["d_optimal_picks"] for p in stage]
+    assert sorted(flown) == [0, 1, 2, 3] and len(orders["d-optimal"]) == 2
+    assert rep["d_optimal_first_picks"] == [
+        [p["radius_rb"], p["inclination_deg"]] for p in rep["d_optimal_picks"][0]
+    ]
+    assert all(v > 0 for v in orders["d-optimal"] + orders["random"][0])
+    parts = rep["wall_parts_s"]
+    assert {"simulate", "fixed_order", "descent_refits", "random_orders", "d_optimal"} <= set(parts)
+    assert all(v >= 0 for v in parts.values())
+    assert "| network, deepest bin (0.25-0.45) after the descents |" in readme
+    assert "| D-optimal after 15 orbits | - | 0.14 | <= 0.14 | - |" in readme
+    assert "## Arrival orders and the D-optimal campaign" in readme
+    for name in ("descents.png", "orders.png"):
+        assert (out / name).stat().st_size > 1000 and f"- `{name}`: " in readme
     again = runner.invoke(app, ["experiment", "readme", str(out)])
     assert again.exit_code == 0 and (out / "README.md").read_text() == readme
+
+
+def test_deep_tiny_without_the_later_parts(tmp_path):
+    out = tmp_path / "deep"
+    args = [
+        "experiment", "deep", *TINY_CAMPAIGN, "--stages", "2", "--sh-degrees", "2",
+        "--map-degrees", "2", "--hidden", "4", "--lm-iterations", "2",
+        "--warm-iterations", "1", "--altitude-m", "30", "--map-points", "11", "--descents", "0",
+        "--random-orders", "0", "--no-d-optimal", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    assert "deep_bins_after_descents" not in rep and "d_optimal_picks" not in rep
+    assert rep["orders"]["random"] == [] and "d-optimal" not in rep["orders"]
+    assert not (out / "orders.png").exists() and not (out / "descents.png").exists()
 
 
 def test_swarm_tiny(tmp_path):

@@ -1,5 +1,5 @@
 """Inside the Brillouin sphere: the 67P deep-region campaign (the paper's section "Inside the
-Brillouin Sphere: the 67P Scenario", first part).
+Brillouin Sphere: the 67P Scenario", and its continual-learning figure).
 
 Truth: 67P at constant density, 240 mascons. Tracking: 18 orbits, a grid of 3 start radii
 (1.1, 1.8, 2.5 R_B) x 6 inclinations (10-80 deg, 14 deg apart), 7 arcs each (126 arcs);
@@ -15,14 +15,39 @@ surface-following set inside the Brillouin sphere as a whole and by r / R_B bins
 0.95 R_B, and pointwise errors on an equatorial-plane grid with the body's cross-section
 masked, summarised over the patches where an SH map model is worse than no correction.
 
-The design leaves room for the later parts of the campaign (descent assimilation, random
-arrival orders, D-optimal selection): they are further stage sequences fed to the same
-continual fit and the same evaluation (:func:`evaluate`).
+The later parts are further stage sequences fed to the same continual fit
+(:class:`hamgrav.fit.continual.ContinualFit`) and the same evaluation:
+
+- Descent assimilation (``descents``, default 9; 0: off): deployment descents released at
+  1.3 R_B (at rest in inertial space plus a 1-3 cm/s inward manoeuvre,
+  :class:`hamgrav.sim.descent.DescentConfig`), flown under the truth to contact and tracked as
+  one arc each (the orbital arcs' 40 samples at 14 s, the last at contact, the same noise;
+  :func:`hamgrav.sim.descent.tracked_descents`). They arrive as a seventh stage after the
+  fixed order's six: the network and the SH degrees of ``descent_degrees`` are warm-refitted
+  on the 126 + 9 arcs from their stage-6 parameters (the network holds out its usual share of
+  the arriving arcs for validation, here one descent) and the deep bins are evaluated again.
+- Arrival orders (``random_orders``, default 5; 0: off): the same orbits under seeded random
+  permutations, split into the same stage sizes, the network alone warm-refitted stage by
+  stage; the mean exterior error after each stage.
+- The D-optimal campaign (``d_optimal``): before each stage, the orbits still in the pool are
+  scored from their plans (initial state and sample times, no measurements) predicted under
+  the current network, with the paper's greedy gain and eps
+  (:func:`hamgrav.fit.design.choose_from_plans`); the stage's picks are then flown (their
+  simulated arcs added) and the network refitted. As in the paper the accumulated
+  information starts at zero, so the first stage is chosen too, under the network's seeded
+  initialisation (the starting point of its first fit), and it is the running sum of the
+  picks' information as predicted when they were picked. The ensemble's members are fitted
+  each on its own, so its information is block-diagonal, one block per member (the gain is
+  the sum of the members' gains, eps per member).
+
+Each part's wall time is reported (``wall_parts_s``).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -31,8 +56,10 @@ from ..bodies.interiors import Truth
 from ..core.arcs import Arcs
 from ..core.fields import pointwise_field_errors
 from ..errors import InputError
-from ..fit.continual import fit_continual
+from ..fit.continual import ContinualFit
+from ..fit.design import OrbitPlan, choose_from_plans, orbit_plans
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from ..sim.descent import DescentConfig, tracked_descents
 from .common import (
     CampaignConfig,
     campaign_artefacts,
@@ -43,7 +70,14 @@ from .common import (
     simulate,
 )
 from .config import option
-from .deep_report import bins_figure, deep_readme, geometry_figure, maps_figure
+from .deep_report import (
+    bins_figure,
+    deep_readme,
+    descents_figure,
+    geometry_figure,
+    maps_figure,
+    orders_figure,
+)
 from .runner import Experiment, RunContext, RunOutput, register
 
 __all__ = [
@@ -52,8 +86,12 @@ __all__ = [
     "NETWORK",
     "SAMPLE_FLOOR_RB",
     "arrival_stages",
+    "random_orders",
     "sample_radii",
     "evaluate",
+    "deep_bins",
+    "join_arcs",
+    "d_optimal_campaign",
 ]
 
 #: Result key of the network row (the ``network-best`` configuration).
@@ -117,6 +155,21 @@ class DeepExperimentConfig(CampaignConfig):
     )
     map_extent_rb: float = option(1.3, "Half-width of the equatorial maps [R_B].")
     map_points: int = option(161, "Grid points along each side of the equatorial maps.")
+    descents: int = option(
+        9,
+        "Deployment descents tracked as one arc each (40 samples at 14 s ending at contact) "
+        "and assimilated after the last stage (0: off).",
+    )
+    descent_degrees: tuple[int, ...] = option(
+        (8, 12),
+        "SH degrees warm-refitted on the descents with the network (among sh_degrees).",
+    )
+    random_orders: int = option(
+        5, "Random arrival orders of the same orbits, network only, seeded by the seed (0: off)."
+    )
+    d_optimal: bool = option(
+        True, "Run the D-optimal campaign (each stage's orbits chosen from the pool)."
+    )
 
     def check(self) -> None:
         super().check()
@@ -146,6 +199,12 @@ class DeepExperimentConfig(CampaignConfig):
             )
         if not self.map_extent_rb > 0 or self.map_points < 3:
             raise InputError("map_extent_rb must be positive and map_points at least 3")
+        if self.descents < 0 or self.random_orders < 0:
+            raise InputError("descents and random_orders must be >= 0 (0: off)")
+        if self.descents and set(self.descent_degrees) - set(self.sh_degrees):
+            raise InputError(
+                f"descent_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"
+            )
 
 
 def arrival_stages(radius_rb, inclination_deg, stages: int) -> list[np.ndarray]:
@@ -162,6 +221,17 @@ def arrival_stages(radius_rb, inclination_deg, stages: int) -> list[np.ndarray]:
     step = max(1, len(incl) // len(radii))
     order = np.lexsort((r_idx, (i_idx - step * r_idx) % len(incl)))
     return [np.asarray(g, dtype=int) for g in np.array_split(order, stages)]
+
+
+def random_orders(n_orbits: int, count: int, stages: int, seed: int) -> list[list[np.ndarray]]:
+    """``count`` random arrival orders of orbits 0..n_orbits-1, each split into ``stages``
+    groups of the fixed order's sizes, seeded by (``seed``, 2): only the permutation of the
+    orbits to the stages differs from :func:`arrival_stages`."""
+    rng = np.random.default_rng([seed, 2])
+    return [
+        [np.asarray(g, dtype=int) for g in np.array_split(rng.permutation(n_orbits), stages)]
+        for _ in range(count)
+    ]
 
 
 def sample_radii(arcs: Arcs, brillouin_radius: float, floor_rb: float = SAMPLE_FLOOR_RB) -> dict:
@@ -183,44 +253,59 @@ def _value(x: float) -> float | None:
     return float(f"{x:.4g}") if np.isfinite(x) else None
 
 
-def evaluate(estimators: dict, truth: Truth, config: DeepExperimentConfig, seed: int) -> dict:
-    """The final models' errors: ``exterior_error`` (mean over the shells), ``deep_error``
-    (the surface-following set inside R_B), ``deep_bins`` ({model: {bin: error}}, None for an
-    empty bin), ``deep_bin_points`` ({bin: points}) and the equatorial ``maps`` (pointwise
-    errors, the inside mask and the patch summary)."""
-    body = truth.body
+def evaluate(fitted: dict, truth: Truth, config: DeepExperimentConfig, seed: int) -> dict:
+    """Errors of fitted models ({name: (model, params)}): ``exterior_error`` (mean over the
+    shells), ``deep_error`` (the surface-following set inside R_B), ``deep_bins`` ({model:
+    {bin: error}}, None for an empty bin), ``deep_bin_points`` ({bin: points}) and the
+    equatorial ``maps`` (pointwise errors, the inside mask and the patch summary)."""
     shells = sets_for(truth, config.shells_rb, (), seed)
+    out: dict = {"exterior_error": {}}
+    for name, (model, params) in fitted.items():
+        out["exterior_error"][name] = _value(
+            np.mean(list(errors_of(model, params, truth, shells).values()))
+        )
+    out.update(deep_bins(fitted, truth, config, seed))
+    out["maps"] = _maps(fitted, truth, config)
+    return out
+
+
+def deep_bins(fitted: dict, truth: Truth, config: DeepExperimentConfig, seed: int) -> dict:
+    """The deep-region errors of fitted models ({name: (model, params)}) on the
+    ``altitude_m`` surface-following set: ``deep_error`` (the set inside R_B), ``deep_bins``
+    ({model: {bin: error}}, None for an empty bin) and ``deep_bin_points`` ({bin: points})."""
+    body = truth.body
     surface = sets_for(truth, (), (config.altitude_m,), seed)[f"h{config.altitude_m:g}m"]
     inside_rb = surface[np.linalg.norm(surface, axis=1) < body.brillouin_radius]
     bins = radial_bins(surface, body.brillouin_radius, config.deep_bins_rb)
     filled = {k: v for k, v in bins.items() if len(v)}
     out: dict = {
-        "exterior_error": {},
         "deep_error": {},
         "deep_bins": {},
         "deep_bin_points": {k: int(len(v)) for k, v in bins.items()},
     }
-    for name, est in estimators.items():
-        out["exterior_error"][name] = _value(
-            np.mean(list(errors_of(est.model_, est.params_, truth, shells).values()))
-        )
-        deep = errors_of(est.model_, est.params_, truth, {"deep": inside_rb, **filled})
+    for name, (model, params) in fitted.items():
+        deep = errors_of(model, params, truth, {"deep": inside_rb, **filled})
         out["deep_error"][name] = _value(deep.pop("deep"))
         out["deep_bins"][name] = {k: _value(deep[k]) if k in deep else None for k in bins}
-    out["maps"] = _maps(estimators, truth, config)
     return out
 
 
-def _maps(estimators: dict, truth: Truth, config: DeepExperimentConfig) -> dict:
+def _bin_summary(by_bin: dict) -> tuple[float | None, float | None]:
+    """(deepest, worst) of a model's bins: the first bin holding points, and the largest."""
+    values = [v for v in by_bin.values() if v is not None]
+    return (values[0], max(values)) if values else (None, None)
+
+
+def _maps(fitted: dict, truth: Truth, config: DeepExperimentConfig) -> dict:
     """Pointwise errors of every model on the equatorial grid (NaN inside the body), and
     the patches: outside points where an SH map model's error exceeds 1."""
     body = truth.body
     points, inside = equatorial_grid(body, config.map_extent_rb, config.map_points)
     outside = points[~inside]
     errors = {}
-    for name, est in estimators.items():
+    for name, (model, params) in fitted.items():
         err = np.full(len(points), np.nan)
-        err[~inside] = pointwise_field_errors(est.model_, est.params_, truth.mascons, outside)
+        err[~inside] = pointwise_field_errors(model, params, truth.mascons, outside)
         errors[name] = err
     patch = np.zeros(len(points), bool)
     for d in config.map_degrees:
@@ -239,13 +324,183 @@ def _maps(estimators: dict, truth: Truth, config: DeepExperimentConfig) -> dict:
     }
 
 
+def join_arcs(first: Arcs, second: Arcs) -> Arcs:
+    """``first``'s arcs followed by ``second``'s (same body, units and samples per arc); the
+    second's trajectories are numbered after the first's. Per-trajectory tables are joined
+    key by key, NaN where one side has no such entry (e.g. the orbits' inclinations for the
+    descents)."""
+    if (first.body_name, first.gm_m3_s2, first.spin_period_s) != (
+        second.body_name,
+        second.gm_m3_s2,
+        second.spin_period_s,
+    ):
+        raise InputError("arcs of different bodies or units cannot be joined")
+    n1, n2 = first.n_trajectories, second.n_trajectories
+
+    def column(info: dict, key: str, n: int, like: np.ndarray) -> np.ndarray:
+        if key in info:
+            return np.asarray(info[key], dtype=float)
+        return np.full((n, *np.shape(like)[1:]), np.nan)
+
+    keys = list(first.trajectory_info) + [
+        k for k in second.trajectory_info if k not in first.trajectory_info
+    ]
+    info = {}
+    for key in keys:
+        like = np.asarray(first.trajectory_info.get(key, second.trajectory_info.get(key)))
+        info[key] = np.concatenate(
+            [
+                column(first.trajectory_info, key, n1, like),
+                column(second.trajectory_info, key, n2, like),
+            ]
+        )
+    return replace(
+        first,
+        times=np.concatenate([first.times, second.times]),
+        states=np.concatenate([first.states, second.states]),
+        true_states=np.concatenate([first.true_states, second.true_states]),
+        trajectory=np.concatenate([first.trajectory, second.trajectory + n1]),
+        trajectory_kind=first.trajectory_kind + second.trajectory_kind,
+        trajectory_info=info,
+    )
+
+
+def d_optimal_campaign(
+    estimator: GravityEstimator,
+    arcs: Arcs,
+    plans: list[OrbitPlan],
+    sizes: list[int],
+    *,
+    brillouin_radius: float,
+    escape_factor: float = 3.0,
+    mapper=map,
+) -> tuple[ContinualFit, list[dict]]:
+    """The D-optimal campaign: before stage k, ``sizes[k]`` orbits are chosen from the plans
+    not yet flown (:func:`hamgrav.fit.design.choose_from_plans`, under the estimator's current
+    parameters: its seeded initialisation before the first stage, as the accumulated
+    information starts at zero), then their arcs (orbit i of ``plans`` is trajectory i of
+    ``arcs``) are added and the estimator refitted, warm after the first stage. As in the
+    paper the accumulated information is the running sum of each pick's information as
+    predicted when it was picked. Only the plans, the model, its parameters and that sum
+    enter a choice.
+    Returns the continual fit and each stage's choice (picked plan indices, gains, log dets,
+    dropped plans). ``brillouin_radius`` is canonical."""
+    model, _ = estimator.build_model(arcs)
+    theta = estimator.initial_params(model, arcs)
+    run = ContinualFit(estimator, arcs)
+    flown: list[int] = []
+    L_acc = None
+    choices = []
+    for size in sizes:
+        pool = [i for i in range(len(plans)) if i not in flown]
+        if not pool:
+            break
+        choice = choose_from_plans(
+            model,
+            theta,
+            plans,
+            pool=pool,
+            picks=size,
+            L_acc=L_acc,
+            brillouin_radius=brillouin_radius,
+            body_name=arcs.body_name,
+            gm_m3_s2=arcs.gm_m3_s2,
+            spin_period_s=arcs.spin_period_s,
+            escape_factor=escape_factor,
+            mapper=mapper,
+        )
+        L_acc = choice.pop("L_acc")
+        flown += choice["picked"]
+        theta = run.add(arcs.arcs_of(choice["picked"])).result.params
+        choices.append(choice)
+    return run, choices
+
+
+def _stage_errors(model, records, truth: Truth, shells: dict) -> list[float | None]:
+    """The mean exterior error (over ``shells``) of every stage's parameters."""
+    return [
+        _value(np.mean(list(errors_of(model, r.result.params, truth, shells).values())))
+        for r in records
+    ]
+
+
+def _fit_record(record) -> dict:
+    """Plain-data summary of a stage's fit."""
+    return {
+        "iterations": record.result.iterations,
+        "wall_s": round(record.result.wall_s, 2),
+        "outcome": record.result.outcome.value,
+        "warm_started": record.warm_started,
+    }
+
+
+def _descent_record(descents: Arcs, truth: Truth) -> dict:
+    """Plain-data summary of the tracked descents: count, duration [s], the radii [R_B] their
+    arcs span, where they touch down [R_B]."""
+    r_b = truth.body.brillouin_radius
+    r = np.linalg.norm(descents.true_states[..., :3], axis=-1) / r_b
+    info = descents.trajectory_info
+
+    def span(values) -> dict:
+        values = np.asarray(values, dtype=float)
+        return {"min": round(float(values.min()), 3), "max": round(float(values.max()), 3)}
+
+    return {
+        "n": descents.n_arcs,
+        "duration_s": span(info["duration_s"]),
+        "arc_radius_rb": span(r),
+        "arc_start_radius_rb": [round(float(v), 3) for v in r[:, 0]],
+        "contact_radius_rb": [round(float(v), 3) for v in r[:, -1]],
+        "dv_m_s": [round(float(v), 4) for v in info["dv_m_s"]],
+    }
+
+
+def _order_unit(unit, *, arcs, truth, settings, sizes, shells, seed, escape_factor) -> dict:
+    """One arrival order of the network (a work unit of plain data): ``unit`` is ("random",
+    stage groups of orbit indices) or ("d-optimal", None). Returns the orbits by stage, the
+    mean exterior error after each stage, the D-optimal choices and the wall time [s]."""
+    kind, groups = unit
+    start = time.perf_counter()
+    est = GravityEstimator(body=truth.body, seed=seed, **settings)
+    choices = None
+    if kind == "random":
+        run = ContinualFit(est, arcs)
+        for g in groups:
+            run.add(arcs.arcs_of(g))
+        orbits = [[int(k) for k in g] for g in groups]
+    else:
+        run, choices = d_optimal_campaign(
+            est,
+            arcs,
+            orbit_plans(arcs),
+            sizes,
+            brillouin_radius=truth.body.brillouin_radius,
+            escape_factor=escape_factor,
+        )
+        orbits = [c["picked"] for c in choices]
+    return {
+        "kind": kind,
+        "orbits": orbits,
+        "errors": _stage_errors(est.model_, run.records, truth, shells),
+        "choices": choices,
+        "fit_wall_s": round(sum(r.result.wall_s for r in run.records), 1),
+        "wall_s": round(time.perf_counter() - start, 1),
+    }
+
+
 class DeepExperiment(Experiment):
     """See the module docstring."""
 
     name = "deep"
     title = "Inside the Brillouin sphere: the deep region of 67P"
     config_type = DeepExperimentConfig
-    aggregate_keys = ("summary", "deep_bins")
+    aggregate_keys = (
+        "summary",
+        "deep_bins",
+        "deep_bins_after_descents",
+        "descents_summary",
+        "orders_summary",
+    )
     default_output = "results/deep-67p"
     figure_captions = {
         "geometry.png": "the tracked arcs over the shape in the body frame, and the radii of "
@@ -256,9 +511,24 @@ class DeepExperiment(Experiment):
         "maps.png": "pointwise relative error of the perturbing potential in the equatorial "
         "plane, common logarithmic colour scale, the body's z = 0 cross-section masked "
         "(grey); dashed: the Brillouin sphere; contours: error 1 (worse than no correction)",
+        "descents.png": "(a) the descent arcs over the shape's vertices, x-y projection (first "
+        "repetition; x: contact); (b) error by radial bin of the models refitted on the "
+        "descents, before (dashed) and after (solid), the median over the repetitions "
+        "(min-max shaded after)",
+        "orders.png": "the network's mean exterior error against the number of orbits tracked "
+        "(first repetition): random arrival orders (grey, min-max band), the D-optimal "
+        "campaign (bold) and the fixed order (dashed)",
     }
 
     def run(self, config: DeepExperimentConfig, ctx: RunContext) -> RunOutput:
+        wall: dict[str, float] = {}
+        clock = [time.perf_counter()]
+
+        def lap(part: str) -> None:
+            now = time.perf_counter()
+            wall[part] = round(wall.get(part, 0.0) + now - clock[0], 1)
+            clock[0] = now
+
         truth, arcs = simulate(config, ctx)
         r_b = truth.body.brillouin_radius
         radii = sample_radii(arcs, r_b)
@@ -269,11 +539,33 @@ class DeepExperiment(Experiment):
         )
         info = arcs.trajectory_info
         groups = arrival_stages(info["radius_rb"], info["inclination_deg"], config.stages)
-        arriving = [arcs.arcs_of(g) for g in groups]
+        sizes = [len(g) for g in groups]
+        tracking = config.campaign(ctx.seed).tracking
+        lap("simulate")
+        all_arcs, descent_idx, descents = arcs, None, None
+        if config.descents:
+            desc = tracked_descents(
+                truth, config.descents, DescentConfig(), tracking, seed=ctx.seed
+            )
+            all_arcs = join_arcs(arcs, desc)
+            descent_idx = np.arange(arcs.n_arcs, all_arcs.n_arcs)
+            descents = _descent_record(desc, truth)
+            ctx.say(
+                f"{config.descents} descents, {descents['duration_s']['min']:.0f}-"
+                f"{descents['duration_s']['max']:.0f} s; their arcs span "
+                f"{descents['arc_radius_rb']['min']:.2f}-{descents['arc_radius_rb']['max']:.2f} R_B"
+            )
+            lap("descents_simulate")
+        arriving = [all_arcs.arcs_of(g) for g in groups]
         best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic)
         best["warm_solver"] = replace(best["warm_solver"], max_iter=config.warm_iterations)
         rows = {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}
         rows[NETWORK] = best
+        refit = (
+            {NETWORK, *(f"sh{d}" for d in config.descent_degrees)}
+            if descent_idx is not None
+            else set()
+        )
         shells = sets_for(truth, config.shells_rb, (), ctx.seed)
         counts = np.cumsum([len(a) for a in arriving])
         stages = [
@@ -285,35 +577,41 @@ class DeepExperiment(Experiment):
             }
             for g, n in zip(groups, counts, strict=True)
         ]
-        estimators = {}
+        finals, after, descent_fits, fits = {}, {}, {}, {}
         for name, settings in rows.items():
             est = GravityEstimator(body=truth.body, seed=ctx.seed, mapper=ctx.mapper, **settings)
-            records = fit_continual(est, arcs, arriving, warm_start=True)
-            for stage, record in zip(stages, records, strict=True):
-                errs = errors_of(est.model_, record.result.params, truth, shells)
-                stage["exterior_error"][name] = _value(np.mean(list(errs.values())))
-                stage["fits"][name] = {
-                    "iterations": record.result.iterations,
-                    "wall_s": round(record.result.wall_s, 2),
-                    "outcome": record.result.outcome.value,
-                    "warm_started": record.warm_started,
-                }
-            estimators[name] = est
+            run = ContinualFit(est, all_arcs)
+            for new in arriving:
+                run.add(new)
+            records = list(run.records)
+            errors = _stage_errors(est.model_, records, truth, shells)
+            for stage, record, err in zip(stages, records, errors, strict=True):
+                stage["exterior_error"][name] = err
+                stage["fits"][name] = _fit_record(record)
+            finals[name] = (est.model_, records[-1].result.params)
             ctx.say(
                 f"{name}: exterior error by stage "
-                + ", ".join(f"{s['exterior_error'][name]}" for s in stages)
+                + ", ".join(f"{e}" for e in errors)
                 + f"; {sum(r.result.wall_s for r in records):.0f} s in all"
             )
-        ev = evaluate(estimators, truth, config, ctx.seed)
+            fixed_fit = est.fitted_.solver
+            lap("fixed_order")
+            if name in refit:
+                record = run.add(descent_idx)
+                after[name] = (est.model_, record.result.params)
+                descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
+                lap("descent_refits")
+            fits[name] = fixed_fit
+        ev = evaluate(finals, truth, config, ctx.seed)
         maps = ev.pop("maps")
         summary = {}
-        for name in estimators:
-            by_bin = [v for v in ev["deep_bins"][name].values() if v is not None]
+        for name in finals:
+            deepest, worst = _bin_summary(ev["deep_bins"][name])
             summary[name] = {
                 "exterior": ev["exterior_error"][name],
                 "deep": ev["deep_error"][name],
-                "deepest_bin": by_bin[0] if by_bin else None,
-                "worst_bin": max(by_bin) if by_bin else None,
+                "deepest_bin": deepest,
+                "worst_bin": worst,
                 "patch_median": maps["patch_median"][name],
             }
         ctx.say(
@@ -321,6 +619,7 @@ class DeepExperiment(Experiment):
             + ", ".join(f"{n} {s['deep']}" for n, s in summary.items())
             + f"; patches: {maps['patch_points']} map points"
         )
+        lap("evaluate")
         result = {
             "body": config.body,
             "n_arcs": arcs.n_arcs,
@@ -331,21 +630,148 @@ class DeepExperiment(Experiment):
             "patch_inside_brillouin": maps["patch_inside_brillouin"],
             "summary": summary,
             "stages": stages,
-            "fits": {n: e.fitted_.solver for n, e in estimators.items()},
+            "fits": fits,
         }
+        if after:
+            result.update(self._after_descents(after, summary, truth, shells, config, ctx))
+            result["descents"] = {**descents, "fits": descent_fits}
+            lap("evaluate_descents")
+        result.update(self._orders(arcs, truth, best, sizes, stages, shells, tracking, ctx, config))
+        wall["random_orders"] = result.pop("_random_wall_s")
+        wall["d_optimal"] = result.pop("_d_optimal_wall_s")
+        lap("orders_elapsed")
+        result["wall_parts_s"] = wall
+        ctx.say("wall time by part [s]: " + ", ".join(f"{k} {v:.0f}" for k, v in wall.items()))
         artefacts = campaign_artefacts(truth, arcs)
         artefacts["maps"] = {k: maps[k] for k in ("errors", "inside", "patch", "axis_m")}
+        if descent_idx is not None:
+            length = truth.body.units.length_m
+            artefacts["descent_positions_m"] = all_arcs.true_states[descent_idx, :, :3] * length
         return RunOutput(result, artefacts)
+
+    @staticmethod
+    def _after_descents(after, summary, truth, shells, config, ctx) -> dict:
+        """The deep bins, deep set and exterior error of the models refitted on the
+        descents, beside their values before."""
+        ev = deep_bins(after, truth, config, ctx.seed)
+        out = {"deep_bins_after_descents": ev["deep_bins"], "descents_summary": {}}
+        for name, (model, params) in after.items():
+            deepest, worst = _bin_summary(ev["deep_bins"][name])
+            exterior = np.mean(list(errors_of(model, params, truth, shells).values()))
+            out["descents_summary"][name] = {
+                "deepest_bin_before": summary[name]["deepest_bin"],
+                "deepest_bin_after": deepest,
+                "worst_bin_after": worst,
+                "deep_before": summary[name]["deep"],
+                "deep_after": ev["deep_error"][name],
+                "exterior_before": summary[name]["exterior"],
+                "exterior_after": _value(exterior),
+            }
+        ctx.say(
+            "after the descents, deepest bin: "
+            + ", ".join(
+                f"{n} {s['deepest_bin_before']} -> {s['deepest_bin_after']}"
+                for n, s in out["descents_summary"].items()
+            )
+        )
+        return out
+
+    @staticmethod
+    def _orders(arcs, truth, best, sizes, stages, shells, tracking, ctx, config) -> dict:
+        """The random arrival orders and the D-optimal campaign of the network, as work units
+        over ``ctx.mapper``; the fixed order's curve is taken from ``stages``."""
+        n_orbits = [int(n) for n in np.cumsum(sizes)]
+        units = [
+            ("random", g)
+            for g in random_orders(arcs.n_trajectories, config.random_orders, len(sizes), ctx.seed)
+        ]
+        if config.d_optimal:
+            units.append(("d-optimal", None))
+        work = partial(
+            _order_unit,
+            arcs=arcs,
+            truth=truth,
+            settings=best,
+            sizes=sizes,
+            shells=shells,
+            seed=ctx.seed,
+            escape_factor=tracking.escape_factor,
+        )
+        done = []
+        for unit in ctx.mapper(work, units):  # builtin map: one by one, as each finishes
+            done.append(unit)
+            ctx.say(
+                f"order {len(done)}/{len(units)} ({unit['kind']}): exterior error by stage "
+                + ", ".join(f"{e}" for e in unit["errors"])
+                + f"; {unit['wall_s']:.0f} s"
+            )
+        fixed = [s["exterior_error"][NETWORK] for s in stages]
+        orders: dict = {"n_orbits": n_orbits, "fixed": fixed}
+        random = [d for d in done if d["kind"] == "random"]
+        dopt = next((d for d in done if d["kind"] == "d-optimal"), None)
+        out: dict = {"_random_wall_s": round(sum(d["wall_s"] for d in random), 1)}
+        out["_d_optimal_wall_s"] = dopt["wall_s"] if dopt else 0.0
+        orders["random"] = [d["errors"] for d in random]
+        orders["random_orbits"] = [d["orbits"] for d in random]
+        curves = {"fixed": fixed}
+        if random:
+            table = np.array([[np.inf if e is None else e for e in d["errors"]] for d in random])
+            curves["random-best"] = [_value(v) for v in table.min(axis=0)]
+            curves["random-worst"] = [_value(v) for v in table.max(axis=0)]
+            ctx.say(
+                f"{len(random)} random orders, exterior error after each stage: "
+                + "; ".join(", ".join(f"{e}" for e in d["errors"]) for d in random)
+            )
+        if dopt is not None:
+            orders["d-optimal"] = dopt["errors"]
+            orders["d_optimal_orbits"] = dopt["orbits"]
+            curves["d-optimal"] = dopt["errors"]
+            info = arcs.trajectory_info
+            out["d_optimal_picks"] = [
+                [
+                    {
+                        "orbit": k,
+                        "radius_rb": float(info["radius_rb"][k]),
+                        "inclination_deg": float(info["inclination_deg"][k]),
+                        "gain": round(g, 2),
+                    }
+                    for k, g in zip(c["picked"], c["gains"], strict=True)
+                ]
+                for c in dopt["choices"]
+            ]
+            out["d_optimal_first_picks"] = [
+                [p["radius_rb"], p["inclination_deg"]] for p in out["d_optimal_picks"][0]
+            ]
+            ctx.say(
+                "D-optimal: exterior error after each stage "
+                + ", ".join(f"{e}" for e in dopt["errors"])
+                + "; first picks (R_B, deg) "
+                + ", ".join(f"({r:g}, {i:g})" for r, i in out["d_optimal_first_picks"])
+            )
+        out["orders"] = orders
+        out["orders_summary"] = {
+            name: {f"{n} orbits": e for n, e in zip(n_orbits, curve, strict=False)}
+            for name, curve in curves.items()
+        }
+        return out
 
     def readme(self, report: dict) -> list[str]:
         return deep_readme(report)
 
     def figures(self, report: dict, artefacts: dict) -> dict:
-        return {
+        figures = {
             "geometry.png": geometry_figure(report, artefacts),
             "deep_bins.png": bins_figure(report),
             "maps.png": maps_figure(report, artefacts),
         }
+        if report["aggregate"].get("deep_bins_after_descents"):
+            figures["descents.png"] = descents_figure(report, artefacts)
+        if any(
+            len(r.get("orders", {}).get("random", [])) or "d-optimal" in r.get("orders", {})
+            for r in report["repetitions"]
+        ):
+            figures["orders.png"] = orders_figure(report)
+        return figures
 
 
 register(DeepExperiment())

@@ -1,6 +1,8 @@
 """README and figures of the deep-region experiment (:mod:`hamgrav.experiments.deep`): the
 aggregate next to the paper's numbers, the stage-by-stage exterior error, the geometry, the
-error by radial bin and the equatorial maps."""
+error by radial bin and the equatorial maps, the bins before and after the descents, and the
+exterior error against the number of orbits for the arrival orders and the D-optimal
+campaign."""
 
 from __future__ import annotations
 
@@ -14,7 +16,15 @@ from matplotlib.figure import Figure
 from ..report.figures import orbits_and_radii_figure
 from .runner import format_range
 
-__all__ = ["PAPER", "deep_readme", "geometry_figure", "bins_figure", "maps_figure"]
+__all__ = [
+    "PAPER",
+    "deep_readme",
+    "geometry_figure",
+    "bins_figure",
+    "maps_figure",
+    "descents_figure",
+    "orders_figure",
+]
 
 #: The paper's numbers (67P, 126 arcs, one run): SH 8 exterior error (shells 1.2-1.7 R_B);
 #: 300 m above the surface inside the Brillouin sphere, SH 4 / 8 / 12; the network's deepest
@@ -26,6 +36,14 @@ PAPER = {
     "network_worst_bin": 0.51,
     "patch_median_sh": 2.7,
     "patch_median_network": 0.27,
+    # after the nine descents: the network's deepest bin; SH 8 and SH 12 on the deep set
+    "after_descents": {"network_deepest_bin": 0.15, "sh8": 1.5, "sh12": 7.6},
+    # the network's mean exterior error under five random arrival orders
+    "random_after_6": (0.37, 1.06),
+    "random_after_18": (0.20, 0.26),
+    # the D-optimal campaign after 15 orbits; below every random order from 12 orbits on
+    "d_optimal_15": 0.14,
+    "d_optimal_below_from": 12,
 }
 
 
@@ -46,6 +64,14 @@ def _cell(summary: dict, model: str, key: str, fmt: str = "{:.3g}") -> str:
 def _count(reps: list[dict], test) -> str:
     """``n of N``: repetitions where ``test(rep)`` holds (a missing value fails)."""
     return f"{sum(bool(test(r)) for r in reps)} of {len(reps)}"
+
+
+def _count_applicable(reps: list[dict], test) -> str:
+    """``n of N`` over the repetitions where ``test(rep)`` is not None (a statement that does
+    not apply, e.g. no stage with 15 orbits); "-" when it applies to none."""
+    verdicts = [test(r) for r in reps]
+    known = [v for v in verdicts if v is not None]
+    return f"{sum(bool(v) for v in known)} of {len(known)}" if known else "-"
 
 
 def _le(value, bound) -> bool:
@@ -152,6 +178,8 @@ def deep_readme(report: dict) -> list[str]:
             f"- {m}: {f['solver']}, {f['outcome']}, {f['iterations']} iterations, "
             f"{f['wall_s']:.1f} s"
         )
+    lines += _descents_section(report, net)
+    lines += _orders_section(report)
     lines += [
         "",
         "Known differences of set-up (the paper does not fix them): the truth is "
@@ -161,6 +189,21 @@ def deep_readme(report: dict) -> list[str]:
         "",
         "Wall time per repetition [s]: " + ", ".join(f"{r['wall_s']:.0f}" for r in reps),
     ]
+    parts = [list(r.get("wall_parts_s", {})) for r in reps]
+    if parts and parts[0]:
+        lines += [
+            "",
+            "Wall time by part [s] (random orders and D-optimal: the sum of their work "
+            "units; `orders_elapsed`: the time they took together):",
+            "",
+            "| seed | " + " | ".join(parts[0]) + " |",
+            "|---|" + "---|" * len(parts[0]),
+        ]
+        for r in reps:
+            w = r.get("wall_parts_s", {})
+            lines.append(
+                f"| {r['seed']} | " + " | ".join(f"{w.get(k, 0):.0f}" for k in parts[0]) + " |"
+            )
     return lines
 
 
@@ -205,10 +248,214 @@ def _paper_rows(reps, summary, sh, net, deepest, altitude) -> list[str]:
         f"| patch median, network | {_cell(summary, net, 'patch_median')} | "
         f"{PAPER['patch_median_network']} | | |",
     ]
+    rows += _later_paper_rows(reps, summary, net, deepest)
     if len(sh_deep) < len(deep):
         rows.append("")
         rows.append("(-: a degree the paper quotes was not fitted in this run.)")
     return rows
+
+
+def _orders_value(rep: dict, curve: str, n: int):
+    """A repetition's value of ``curve`` after ``n`` orbits (None when not run)."""
+    return rep.get("orders_summary", {}).get(curve, {}).get(f"{n} orbits")
+
+
+def _d_optimal_below(rep: dict, from_orbits: int) -> bool | None:
+    """Whether the D-optimal curve lies below every random order at every stage with at
+    least ``from_orbits`` orbits (None: no such stage, or a curve is missing)."""
+    orders = rep.get("orders", {})
+    dopt, random = orders.get("d-optimal"), orders.get("random")
+    stages = [k for k, n in enumerate(orders.get("n_orbits", [])) if n >= from_orbits]
+    if not dopt or not random or not stages:
+        return None
+    for k in stages:
+        values = [curve[k] for curve in random]
+        if dopt[k] is None or any(v is None for v in values) or dopt[k] >= min(values):
+            return False
+    return True
+
+
+def _first_picks_polar(rep: dict, top_inclination: float) -> bool | None:
+    """Whether the D-optimal first stage is at ``top_inclination`` [deg] (the grid's
+    highest), each pick at a different start radius: the paper's "three 80-degree orbits
+    across the radius range"."""
+    picks = rep.get("d_optimal_first_picks")
+    if not picks:
+        return None
+    radii = {round(p[0], 6) for p in picks}
+    return all(p[1] == top_inclination for p in picks) and len(radii) == len(picks)
+
+
+def _later_paper_rows(reps, summary, net, deepest) -> list[str]:
+    """The paper's rows of the descent assimilation, the arrival orders and the D-optimal
+    campaign beside ours (median, min-max over the repetitions)."""
+    rows = []
+    after = PAPER["after_descents"]
+    if any("descents_summary" in r for r in reps):
+        d_agg = _aggregate_of(reps, "descents_summary")
+        rows += [
+            f"| network, deepest bin ({deepest}) after the descents | "
+            f"{_cell(d_agg, net, 'deepest_bin_after')} | {after['network_deepest_bin']} | "
+            f"<= {after['network_deepest_bin']} | "
+            + _count(
+                reps,
+                lambda r: _le(
+                    r.get("descents_summary", {}).get(net, {}).get("deepest_bin_after"),
+                    after["network_deepest_bin"],
+                ),
+            )
+            + " |",
+            "| SH 8 / 12 after the descents, deep set (before) | "
+            + " / ".join(
+                f"{_cell(d_agg, m, 'deep_after')} ({_cell(d_agg, m, 'deep_before')})"
+                for m in ("sh8", "sh12")
+            )
+            + f" | {after['sh8']:g} / {after['sh12']:g} (1.34 / 45) | | |",
+        ]
+    if any(r.get("orders", {}).get("random") for r in reps):
+        lo6, hi6 = PAPER["random_after_6"]
+        lo18, hi18 = PAPER["random_after_18"]
+        rows += [
+            "| random orders after 6 orbits, luckiest / unluckiest | "
+            + " / ".join(_order_cell(reps, c, 6) for c in ("random-best", "random-worst"))
+            + f" | {lo6} / {hi6} | | |",
+            "| random orders after 18 orbits, luckiest / unluckiest | "
+            + " / ".join(_order_cell(reps, c, 18) for c in ("random-best", "random-worst"))
+            + f" | {lo18}-{hi18} | | |",
+        ]
+    if any("d-optimal" in r.get("orders", {}) for r in reps):
+        d15, from_n = PAPER["d_optimal_15"], PAPER["d_optimal_below_from"]
+        top = max(
+            p["inclination_deg"] for r in reps for stage in r["d_optimal_picks"] for p in stage
+        )
+        rows += [
+            f"| D-optimal after 15 orbits | {_order_cell(reps, 'd-optimal', 15)} | {d15} | "
+            f"<= {d15} | "
+            + _count_applicable(
+                reps,
+                lambda r: (
+                    None
+                    if _orders_value(r, "d-optimal", 15) is None
+                    else _le(_orders_value(r, "d-optimal", 15), d15)
+                ),
+            )
+            + " |",
+            f"| D-optimal below every random order from {from_n} orbits on | | yes | yes | "
+            + _count_applicable(reps, lambda r: _d_optimal_below(r, from_n))
+            + " |",
+            f"| D-optimal first picks: {top:g} deg, each at another start radius | "
+            + "; ".join(
+                ", ".join(f"{p[0]:g}/{p[1]:g}" for p in r.get("d_optimal_first_picks", []))
+                for r in reps
+            )
+            + " (R_B/deg) | 80 deg x 3 radii | | "
+            + _count_applicable(reps, lambda r: _first_picks_polar(r, top))
+            + " |",
+        ]
+    return rows
+
+
+def _aggregate_of(reps: list[dict], key: str) -> dict:
+    """:func:`~hamgrav.experiments.runner.aggregate` of one key (its ``{model: {stat}}``)."""
+    from .runner import aggregate
+
+    return aggregate(reps, (key,))[key]
+
+
+def _order_cell(reps: list[dict], curve: str, n: int) -> str:
+    """``curve`` after ``n`` orbits: median (min-max) over the repetitions, "-" if absent."""
+    return _cell(_aggregate_of(reps, "orders_summary"), curve, f"{n} orbits")
+
+
+def _descents_section(report: dict, net: str) -> list[str]:
+    """The descent assimilation: the descents, and each refitted model's bins before and
+    after."""
+    reps = report["repetitions"]
+    first = reps[0]
+    if "descents" not in first:
+        return []
+    d = first["descents"]
+    labels = list(first["deep_bin_points"])
+    agg_before = report["aggregate"]["deep_bins"]
+    agg_after = report["aggregate"].get("deep_bins_after_descents", {})
+    d_agg = report["aggregate"].get("descents_summary", {})
+    lines = [
+        "",
+        "## Descent assimilation",
+        "",
+        f"{d['n']} deployment descents released at 1.3 R_B (at rest in inertial space plus a "
+        "1-3 cm/s inward manoeuvre within 20 deg of the centre), flown under the truth to "
+        "contact, each tracked as one arc of 40 samples at 14 s ending at contact, with the "
+        "orbital arcs' noise. They arrive as a last stage after the six of the fixed order; "
+        "the models below are warm-refitted on all arcs from their stage-6 parameters (the "
+        "network holds out its usual share of the arriving arcs for validation: one "
+        "descent). First repetition: descents of "
+        f"{d['duration_s']['min']:.0f}-{d['duration_s']['max']:.0f} s, arcs spanning "
+        f"{d['arc_radius_rb']['min']:.2f}-{d['arc_radius_rb']['max']:.2f} R_B, contact at "
+        + ", ".join(f"{v:.2f}" for v in d["contact_radius_rb"])
+        + " R_B.",
+        "",
+        "| model | | exterior | deep | " + " | ".join(labels) + " |",
+        "|---|---|---|---|" + "---|" * len(labels),
+    ]
+    for m in d_agg:
+        for when, agg in (("before", agg_before), ("after", agg_after)):
+            cells = [_cell(d_agg, m, f"exterior_{when}"), _cell(d_agg, m, f"deep_{when}")]
+            cells += [format_range(agg.get(m, {}).get(k), "{:.3g}") for k in labels]
+            lines.append(f"| {m} | {when} | " + " | ".join(cells) + " |")
+    fits = first["descents"].get("fits", {})
+    lines += ["", "Refits on the descents (first repetition):", ""]
+    for m, f in fits.items():
+        lines.append(
+            f"- {m}: {f['n_arcs']} arcs, {f['outcome']}, {f['iterations']} iterations, "
+            f"{f['wall_s']:.1f} s"
+        )
+    return lines
+
+
+def _orders_section(report: dict) -> list[str]:
+    """The arrival orders and the D-optimal campaign: the network's mean exterior error
+    after each stage, and what D-optimal picks."""
+    reps = report["repetitions"]
+    first = reps[0]
+    orders = first.get("orders")
+    if not orders or (not orders.get("random") and "d-optimal" not in orders):
+        return []
+    agg = report["aggregate"].get("orders_summary", {})
+    curves = [c for c in ("fixed", "random-best", "random-worst", "d-optimal") if c in agg]
+    lines = [
+        "",
+        "## Arrival orders and the D-optimal campaign",
+        "",
+        f"The network alone (`{_network_row(first['summary'])}`), warm-refitted stage by "
+        f"stage on the same {len(orders['n_orbits'])} stages of orbits: the fixed order "
+        f"above, {len(orders.get('random', []))} random permutations of the orbits to the "
+        "stages (seeded by the repetition's seed), and the D-optimal campaign, which before "
+        "each stage picks the stage's orbits greedily from those not yet flown by the "
+        "paper's gain (log det of the predicted information, eps = max(1e-8, 1e-6 tr / n_p)) "
+        "under the current network; its first stage is chosen under the network's seeded "
+        "initialisation, as the paper's accumulated information starts at zero. The "
+        "accumulated information is the running sum of the picks' information as predicted "
+        "when picked; the ensemble's members are fitted each on its own, so the information "
+        "is one block per member (eps per member, gains summed). Mean "
+        "exterior error after n orbits (random-best / -worst: the luckiest and unluckiest "
+        "of the random orders at that stage):",
+        "",
+        "| curve | " + " | ".join(str(n) for n in orders["n_orbits"]) + " |",
+        "|---|" + "---|" * len(orders["n_orbits"]),
+    ]
+    for c in curves:
+        cells = [format_range(agg[c].get(f"{n} orbits"), "{:.3g}") for n in orders["n_orbits"]]
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    if "d_optimal_picks" in first:
+        lines += ["", "D-optimal picks by stage, radius [R_B] / inclination [deg]:", ""]
+        for r in reps:
+            stages = "; ".join(
+                ", ".join(f"{p['radius_rb']:g}/{p['inclination_deg']:g}" for p in stage)
+                for stage in r.get("d_optimal_picks", [])
+            )
+            lines.append(f"- seed {r['seed']}: {stages}")
+    return lines
 
 
 def geometry_figure(report: dict, artefacts: dict) -> Figure:
@@ -288,3 +535,85 @@ def maps_figure(report: dict, artefacts: dict) -> Figure:
     axes[0].set_ylabel("y [m]")
     fig.colorbar(image, ax=list(axes), shrink=0.8, label="|V_model - V_true| / |V_true|")
     return fig
+
+
+def descents_figure(report: dict, artefacts: dict) -> Figure:
+    """(a) The descent arcs over the shape's vertices, x-y projection [m] (first repetition);
+    (b) error by radial bin of the refitted models before (dashed) and after (solid) the
+    descents: the median over the repetitions, min-max shaded after."""
+    fig = Figure(figsize=(11, 4.4))
+    ax0, ax = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1, 1.3]})
+    vertices = artefacts["vertices_m"]
+    ax0.scatter(vertices[:, 0], vertices[:, 1], s=0.3, color="0.75", rasterized=True)
+    for k, path in enumerate(artefacts.get("descent_positions_m", [])):
+        ax0.plot(path[:, 0], path[:, 1], "-", color=f"C{k % 10}", lw=1.5)
+        ax0.plot(path[-1, 0], path[-1, 1], "x", color=f"C{k % 10}")
+    angle = np.linspace(0, 2 * np.pi, 200)
+    r_b = artefacts["brillouin_radius_m"]
+    ax0.plot(r_b * np.cos(angle), r_b * np.sin(angle), "k--", lw=0.8)
+    ax0.set_aspect("equal")
+    ax0.set_xlabel("x [m]")
+    ax0.set_ylabel("y [m]")
+    ax0.set_title("(a) descent arcs (x: contact)", fontsize=9)
+    labels = list(report["repetitions"][0]["deep_bin_points"])
+    edges = np.asarray(report["config"]["deep_bins_rb"], dtype=float)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    after = report["aggregate"]["deep_bins_after_descents"]
+    before = report["aggregate"]["deep_bins"]
+
+    def column(agg, model, stat):
+        stats = [agg.get(model, {}).get(k, {}) for k in labels]
+        return np.array([np.nan if s.get(stat) is None else s[stat] for s in stats])
+
+    for i, model in enumerate(after):
+        ax.plot(centres, column(before, model, "median"), "o--", color=f"C{i}", alpha=0.6)
+        ax.plot(centres, column(after, model, "median"), "o-", color=f"C{i}", label=model)
+        lo, hi = column(after, model, "min"), column(after, model, "max")
+        if np.any(hi > lo):
+            ax.fill_between(centres, lo, hi, color=f"C{i}", alpha=0.2, lw=0)
+    ax.axhline(1.0, color="k", ls=":", lw=1, label="no correction")
+    ax.set_yscale("log")
+    ax.set_xticks(centres, labels, fontsize=8)
+    ax.set_xlabel(f"r / R_B, {report['config']['altitude_m']:g} m above the surface")
+    ax.set_ylabel("relative field error")
+    ax.set_title("(b) before (dashed) and after (solid) the descents", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def orders_figure(report: dict) -> Figure:
+    """Mean exterior error against the number of orbits tracked (first repetition): the
+    random orders (thin grey, min-max band), the D-optimal campaign (bold) and the fixed
+    order (dashed)."""
+    first = report["repetitions"][0]
+    orders = first["orders"]
+    n = np.asarray(orders["n_orbits"])
+
+    def values(curve):
+        return np.array([np.nan if v is None else v for v in curve], dtype=float)
+
+    fig = Figure(figsize=(6.5, 4.2))
+    ax = fig.add_subplot()
+    random = [values(c) for c in orders.get("random", [])]
+    for k, curve in enumerate(random):
+        ax.plot(n, curve, "-", color="0.6", lw=0.8, label="random orders" if k == 0 else None)
+    if random:
+        table = np.vstack(random)
+        ax.fill_between(n, table.min(axis=0), table.max(axis=0), color="0.85", lw=0)
+    ax.plot(n, values(orders["fixed"]), "--", color="C1", lw=1.2, label="fixed order")
+    if "d-optimal" in orders:
+        ax.plot(n, values(orders["d-optimal"]), "o-", color="C0", lw=2.2, label="D-optimal")
+    ax.set_yscale("log")
+    ax.set_xticks(n)
+    ax.set_xlabel("orbits tracked")
+    ax.set_ylabel("mean exterior error, shells " + _shell_range(report["config"]) + " R_B")
+    ax.set_title(f"{first['body']}, seed {first['seed']}", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def _shell_range(config: dict) -> str:
+    shells = config["shells_rb"]
+    return f"{min(shells):g}-{max(shells):g}"

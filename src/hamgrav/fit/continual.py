@@ -18,7 +18,7 @@ from ..errors import PropagationError
 from .base import SolveResult
 from .estimator import GravityEstimator, validation_split
 
-__all__ = ["StageRecord", "fit_continual"]
+__all__ = ["StageRecord", "ContinualFit", "fit_continual"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,6 +48,58 @@ class StageRecord:
         }
 
 
+class ContinualFit:
+    """A continual fit driven one stage at a time, for campaigns that decide what arrives next
+    from the current model (e.g. a D-optimal choice of the next orbits).
+
+    ``add(new)`` fits ``estimator`` to every arc received so far plus the arc indices ``new``
+    (of ``arcs``), warm-started from the previous stage's parameters when ``warm_start`` and
+    there is one; it returns the stage's :class:`StageRecord`. Validation arcs follow the
+    module's rule (each arriving stage split once, seeded by the estimator's seed and the
+    stage number). :func:`fit_continual` is this loop over a fixed list of stages.
+    """
+
+    def __init__(self, estimator: GravityEstimator, arcs: Arcs, *, warm_start: bool = True):
+        self.estimator = estimator
+        self.arcs = arcs
+        self.warm_start = warm_start
+        self.records: list[StageRecord] = []
+        self._seen = np.zeros(0, dtype=int)
+        self._held_out = np.zeros(0, dtype=int)
+
+    @property
+    def params(self) -> np.ndarray | None:
+        """Parameters of the last stage (None before the first)."""
+        return self.records[-1].result.params if self.records else None
+
+    def add(self, new: Sequence[int]) -> StageRecord:
+        """Fit the next stage, which brings the arcs ``new`` (indices into ``arcs``)."""
+        estimator = self.estimator
+        k = len(self.records)
+        new = np.asarray(new, dtype=int)
+        if estimator.holdout_fraction > 0:
+            _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
+            self._held_out = np.union1d(self._held_out, new[val])
+        self._seen = np.concatenate([self._seen, new])
+        seen, held_out = self._seen, self._held_out
+        subset = self.arcs.subset(seen)
+        local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
+        theta = self.params
+        warm = self.warm_start and theta is not None
+        try:
+            estimator.fit(subset, init=theta if warm else None, validation=local_val)
+        except PropagationError:
+            if not warm:
+                raise
+            # the previous stage's model does not carry the new arcs: restart this stage
+            warm = False
+            estimator.fit(subset, validation=local_val)
+        record = StageRecord(k, seen.copy(), held_out.copy(), warm, estimator.result_)
+        self.records.append(record)
+        estimator.fitted_ = replace(estimator.fitted_, stages=[r.summary() for r in self.records])
+        return record
+
+
 def fit_continual(
     estimator: GravityEstimator,
     arcs: Arcs,
@@ -58,36 +110,9 @@ def fit_continual(
 ) -> list[StageRecord]:
     """Fit ``estimator`` stage by stage; ``stages`` lists the arc indices arriving at each.
     Warm-started stages run the estimator's ``warm_solver`` when it has one."""
-    records: list[StageRecord] = []
-    seen = np.zeros(0, dtype=int)
-    held_out = np.zeros(0, dtype=int)
-    theta = None
-    for k, new in enumerate(stages):
-        new = np.asarray(new, dtype=int)
-        if estimator.holdout_fraction > 0:
-            _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
-            held_out = np.union1d(held_out, new[val])
-        seen = np.concatenate([seen, new])
-        subset = arcs.subset(seen)
-        local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
-        warm = warm_start and theta is not None
-        try:
-            estimator.fit(
-                subset,
-                init=theta if warm else None,
-                validation=local_val,
-            )
-        except PropagationError:
-            if not warm:
-                raise
-            # the previous stage's model does not carry the new arcs: restart this stage
-            warm = False
-            estimator.fit(subset, validation=local_val)
-        theta = estimator.params_
-        record = StageRecord(k, seen.copy(), held_out.copy(), warm, estimator.result_)
-        records.append(record)
+    run = ContinualFit(estimator, arcs, warm_start=warm_start)
+    for new in stages:
+        record = run.add(new)
         if on_stage is not None:
             on_stage(record)
-    if records:
-        estimator.fitted_ = replace(estimator.fitted_, stages=[r.summary() for r in records])
-    return records
+    return run.records

@@ -17,6 +17,12 @@ A). The D-optimal score of c given the information accumulated so far, L_acc, is
 and the greedy design picks the argmax from a pool, adds its Lambda to L_acc and repeats.
 Log-determinants are taken by Cholesky factorisation.
 
+A candidate can also be an :class:`OrbitPlan`, an orbit already laid out (initial state and
+sample times, e.g. those of a campaign's simulated orbits, :func:`orbit_plans`), predicted
+the same way (:func:`predicted_plan_arcs`); :func:`choose_from_plans` is the greedy choice
+among plans given the information accumulated so far. A network ensemble, whose members are
+fitted each on its own, has block-diagonal information: one block per member, eps per block.
+
 Everything is in canonical units (mu = omega = 1): times in spin periods / 2 pi, lengths in the
 synchronous radius, Lambda in (canonical state units / parameter units)^2.
 """
@@ -24,7 +30,7 @@ synchronous radius, Lambda in (canonical state units / parameter units)^2.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 
 import numpy as np
@@ -35,12 +41,16 @@ from ..core.mascons import MasconSet
 from ..core.model import DEFAULT_FIT_TOLERANCE, Model
 from ..core.problem import ArcProblem
 from ..core.propagation import propagate_batch
+from ..core.terms import NeuralPotential
 from ..errors import InputError
 from ..sim.tracking import OrbitFamily, TrackingConfig, arc_start_times, draw_orbit_start
 from ..units import CanonicalUnits
 
 __all__ = [
+    "OrbitPlan",
+    "orbit_plans",
     "predicted_arcs",
+    "predicted_plan_arcs",
     "information_matrix",
     "trajectory_informations",
     "regularisation",
@@ -48,6 +58,7 @@ __all__ = [
     "d_optimal_gain",
     "greedy_d_optimal",
     "random_order_logdet",
+    "choose_from_plans",
     "select_orbits",
 ]
 
@@ -62,6 +73,33 @@ def _draw_candidates(rng, families, tracking, window, arc_offsets, r_b):
         raan, arg_lat, state0 = draw_orbit_start(rng, family, r_b)
         out.append((starts[:, None] + arc_offsets[None, :], raan, arg_lat, state0))
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class OrbitPlan:
+    """An orbit as planned before it is flown: its ``family`` (start radius [R_B],
+    inclination [deg]), its canonical initial state (6,) at t = 0 and the canonical sample
+    times (n_arcs, m) of its arcs. A plan holds no measurement and nothing of the truth."""
+
+    family: OrbitFamily
+    initial_state: np.ndarray
+    times: np.ndarray
+
+
+def orbit_plans(arcs: Arcs) -> list[OrbitPlan]:
+    """The plans of the orbits of simulated ``arcs`` (one per trajectory, in trajectory
+    order): the start radius, inclination and initial state recorded by
+    :func:`~hamgrav.sim.tracking.simulate_orbits` and the arcs' sample times; the measured
+    and true states are not read."""
+    info = arcs.trajectory_info
+    return [
+        OrbitPlan(
+            OrbitFamily(float(info["radius_rb"][k]), float(info["inclination_deg"][k])),
+            np.asarray(info["initial_state"][k], dtype=float),
+            np.asarray(arcs.times[arcs.trajectory == k], dtype=float),
+        )
+        for k in range(arcs.n_trajectories)
+    ]
 
 
 def predicted_arcs(
@@ -107,48 +145,94 @@ def predicted_arcs(
     """
     if not families:
         raise InputError("the candidate pool needs at least one orbit family")
-    theta = np.asarray(theta, dtype=float)
-    if trajectory_values is None:
-        trajectory_values = np.zeros(model.n_trajectory_params)
-    if theta.size < model.n_learn:
-        raise ValueError(f"theta must have at least {model.n_learn} entries, got {theta.size}")
     units = CanonicalUnits(gm_m3_s2, spin_period_s)
     rng = np.random.default_rng(seed)
     arc_offsets = float(units.to_time(tracking.cadence_s)) * np.arange(tracking.samples_per_arc)
     window = 2.0 * math.pi * tracking.window_spin_periods
     draws = _draw_candidates(rng, families, tracking, window, arc_offsets, brillouin_radius)
+    plans = [OrbitPlan(f, d[3], d[0]) for f, d in zip(families, draws, strict=True)]
+    arcs = predicted_plan_arcs(
+        model,
+        theta,
+        plans,
+        brillouin_radius=brillouin_radius,
+        body_name=body_name,
+        gm_m3_s2=gm_m3_s2,
+        spin_period_s=spin_period_s,
+        escape_factor=tracking.escape_factor,
+        trajectory_values=trajectory_values,
+        tol=tol,
+    )
+    kept = arcs.trajectory_info["candidate"]
+    arcs.trajectory_info["raan_deg"] = np.array([math.degrees(draws[k][1]) for k in kept])
+    arcs.trajectory_info["arg_lat_deg"] = np.array([math.degrees(draws[k][2]) for k in kept])
+    arcs.config["seed"] = seed
+    arcs.config["tracking"] = asdict(tracking)
+    return replace(arcs, seed=seed)
 
-    n_cand, n_arc, n_m = len(families), tracking.arcs_per_orbit, tracking.samples_per_arc
+
+def predicted_plan_arcs(
+    model: Model,
+    theta,
+    plans: list[OrbitPlan],
+    *,
+    brillouin_radius: float,
+    body_name: str,
+    gm_m3_s2: float,
+    spin_period_s: float,
+    escape_factor: float = 3.0,
+    trajectory_values=None,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+) -> Arcs:
+    """Noiseless arcs of planned orbits (:class:`OrbitPlan`, all with the same arcs and
+    samples per arc), predicted under ``model`` at ``theta`` from their initial states:
+    the one prediction path of :func:`predicted_arcs`. A plan whose prediction diverges or
+    escapes (r > ``escape_factor`` times its initial radius at a sample) is dropped:
+    ``trajectory_info["candidate"]`` maps each kept trajectory to its plan index and
+    ``trajectory_info["dropped"]`` lists the dropped plans. Canonical units throughout;
+    ``brillouin_radius`` (canonical) scales ``min_radius_rb``; the body's name, GM
+    [m^3/s^2] and spin period [s] label the arcs."""
+    if not plans:
+        raise InputError("the candidate pool needs at least one orbit")
+    theta = np.asarray(theta, dtype=float)
+    if trajectory_values is None:
+        trajectory_values = np.zeros(model.n_trajectory_params)
+    if theta.size < model.n_learn:
+        raise ValueError(f"theta must have at least {model.n_learn} entries, got {theta.size}")
+    shapes = {np.shape(p.times) for p in plans}
+    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+        raise InputError("every planned orbit needs the same (arcs, samples) sample times")
+    n_cand = len(plans)
+    n_arc, n_m = next(iter(shapes))
     pars = np.zeros((model.n_system_params, n_cand))
     pars[: model.n_learn] = theta[: model.n_learn, None]
     if model.n_trajectory_params:
         pars[model.n_learn :] = np.asarray(trajectory_values, dtype=float).reshape(-1, 1)
-    # each grid starts at the candidate's start time, 0: drop that column afterwards
-    grids = np.stack([np.concatenate([[0.0], d[0].ravel()]) for d in draws])
-    run = propagate_batch(model, np.stack([d[3] for d in draws]), grids, pars, tol=tol)
+    # each grid starts at the plan's start time, 0: drop that column afterwards
+    grids = np.stack([np.concatenate([[0.0], np.ravel(p.times)]) for p in plans])
+    states0 = np.stack([np.asarray(p.initial_state, dtype=float) for p in plans])
+    run = propagate_batch(model, states0, grids, pars, tol=tol)
     predicted = run.states[:, 1:]  # NaN where the prediction failed
 
-    radius0 = np.array([f.radius_rb * brillouin_radius for f in families])
+    radius0 = np.linalg.norm(states0[:, :3], axis=1)
     r = np.linalg.norm(predicted[..., :3], axis=-1)
     finite = np.all(np.isfinite(predicted), axis=(1, 2))
     keep = finite & np.all(
-        np.where(finite[:, None], r, 0.0) <= tracking.escape_factor * radius0[:, None], axis=1
+        np.where(finite[:, None], r, 0.0) <= escape_factor * radius0[:, None], axis=1
     )
     kept = np.flatnonzero(keep)
 
     info = {
-        "radius_rb": np.array([families[k].radius_rb for k in kept]),
-        "inclination_deg": np.array([families[k].inclination_deg for k in kept]),
-        "raan_deg": np.array([math.degrees(draws[k][1]) for k in kept]),
-        "arg_lat_deg": np.array([math.degrees(draws[k][2]) for k in kept]),
-        "initial_state": np.array([draws[k][3] for k in kept]).reshape(-1, 6),
+        "radius_rb": np.array([plans[k].family.radius_rb for k in kept]),
+        "inclination_deg": np.array([plans[k].family.inclination_deg for k in kept]),
+        "initial_state": states0[kept].reshape(-1, 6),
         "min_radius_rb": r[kept].min(axis=1) / brillouin_radius,
         "candidate": kept,
-        "dropped": np.flatnonzero(~keep),  # family indices (not one entry per trajectory)
+        "dropped": np.flatnonzero(~keep),  # plan indices (not one entry per trajectory)
     }
     states = predicted[kept].reshape(-1, n_m, 6)
     return Arcs(
-        times=np.array([draws[k][0] for k in kept]).reshape(-1, n_m),
+        times=np.array([plans[k].times for k in kept]).reshape(-1, n_m),
         states=states,
         true_states=states.copy(),
         trajectory=np.repeat(np.arange(len(kept), dtype=np.int64), n_arc),
@@ -163,8 +247,7 @@ def predicted_arcs(
         truth=MasconSet(np.zeros((1, 3)), np.ones(1)),
         interior="predicted",
         interior_parameters={},
-        seed=seed,
-        config={"design": "predicted", "model": model.describe(), "tracking": asdict(tracking)},
+        config={"design": "predicted", "model": model.describe()},
     )
 
 
@@ -231,31 +314,56 @@ def d_optimal_gain(L_acc, L_c) -> float:
     return _logdet(L_acc + np.asarray(L_c, dtype=float) + reg) - _logdet(L_acc + reg)
 
 
+def _blocks(matrix) -> tuple[np.ndarray, ...]:
+    """An information matrix as its diagonal blocks: a tuple of blocks as given, else the
+    matrix as one block."""
+    if isinstance(matrix, tuple | list):
+        return tuple(np.asarray(b, dtype=float) for b in matrix)
+    return (np.asarray(matrix, dtype=float),)
+
+
+def _logdet_blocks(blocks, regs) -> float:
+    """sum over blocks of logdet(block + reg I)."""
+    return sum(_logdet(b + r * np.eye(b.shape[0])) for b, r in zip(blocks, regs, strict=True))
+
+
 def _start(infos, n_pick, L_start):
     if not infos:
         raise ValueError("the candidate pool is empty")
     if not 0 <= n_pick <= len(infos):
         raise ValueError(f"cannot pick {n_pick} of {len(infos)} candidates")
-    n = np.shape(infos[0])[0]
-    return np.zeros((n, n)) if L_start is None else np.array(L_start, dtype=float)
+    if L_start is not None:
+        return _blocks(L_start)
+    return tuple(np.zeros_like(b) for b in _blocks(infos[0]))
 
 
 def greedy_d_optimal(infos, n_pick: int, L_start=None):
     """Greedy D-optimal picks (without replacement) from candidate information matrices.
 
+    A candidate's information may be a tuple of diagonal blocks (e.g. one per independently
+    fitted network of an ensemble): its log det is then the sum of the blocks' and eps is
+    taken per block, each block treated as the information matrix of its own parameters.
+
     Returns ``(picked, logdets, gains)``: the candidate indices in pick order, logdet(L_acc +
     eps(L_acc) I) after each pick, and the gain Delta of each pick when it was made.
     """
     L_acc = _start(infos, n_pick, L_start)
+    blocks = [_blocks(i) for i in infos]
     left = list(range(len(infos)))
     picked, logdets, gains = [], [], []
     for _ in range(n_pick):
-        scores = [d_optimal_gain(L_acc, infos[c]) for c in left]
+        # eps and logdet(L_acc + eps I) are shared by every candidate of this pick
+        regs = [regularisation(b) for b in L_acc]
+        base = _logdet_blocks(L_acc, regs)
+        scores = [
+            _logdet_blocks([a + c for a, c in zip(L_acc, blocks[k], strict=True)], regs) - base
+            for k in left
+        ]
         best = left.pop(int(np.argmax(scores)))
         gains.append(float(max(scores)))
         picked.append(best)
-        L_acc = L_acc + infos[best]
-        logdets.append(logdet_regularised(L_acc))
+        L_acc = tuple(a + c for a, c in zip(L_acc, blocks[best], strict=True))
+        logdets.append(_logdet_blocks(L_acc, [regularisation(b) for b in L_acc]))
     return picked, np.asarray(logdets), np.asarray(gains)
 
 
@@ -265,9 +373,89 @@ def random_order_logdet(infos, n_pick: int, seed: int = 0, L_start=None):
     picked = [int(k) for k in np.random.default_rng(seed).permutation(len(infos))[:n_pick]]
     logdets = []
     for k in picked:
-        L_acc = L_acc + infos[k]
-        logdets.append(logdet_regularised(L_acc))
+        L_acc = tuple(a + c for a, c in zip(L_acc, _blocks(infos[k]), strict=True))
+        logdets.append(_logdet_blocks(L_acc, [regularisation(b) for b in L_acc]))
     return picked, np.asarray(logdets)
+
+
+def choose_from_plans(
+    model: Model,
+    theta,
+    plans: list[OrbitPlan],
+    *,
+    pool,
+    picks: int,
+    brillouin_radius: float,
+    body_name: str,
+    gm_m3_s2: float,
+    spin_period_s: float,
+    L_acc=None,
+    escape_factor: float = 3.0,
+    tol: float = DEFAULT_FIT_TOLERANCE,
+    mapper=map,
+) -> dict:
+    """Greedy D-optimal choice of ``picks`` orbits from ``pool`` (indices into ``plans``):
+    each pool plan is predicted under ``model`` at ``theta`` (:func:`predicted_plan_arcs`),
+    its information matrix built from the predicted sensitivities, and the greedy picks
+    maximise Delta given ``L_acc`` (:func:`greedy_d_optimal`, eps of the paper), the
+    information accumulated by the orbits already selected (None: zero, as at the first
+    selection). No measurement and no truth enter: the result depends on the plans, the
+    model, ``theta`` and ``L_acc`` only. For a network ensemble, whose members are fitted each
+    on its own (:class:`~hamgrav.fit.estimator.GravityEstimator`), the information is
+    block-diagonal: one block per member, predicted under that member alone at its block of
+    ``theta``, eps per block (the gain is the sum of the members' gains).
+
+    Returns ``{"picked": plan indices in pick order, "gains": Delta of each pick, "logdets":
+    log det(L_acc + eps I) after each pick, "dropped": pool plans whose prediction diverged or
+    escaped (never picked), "L_acc": the accumulated information after the picks (blocks)}``.
+    Canonical units; ``brillouin_radius`` canonical, the body's name, GM [m^3/s^2] and spin
+    period [s] label the predicted arcs."""
+    pool = [int(k) for k in pool]
+    if len(set(pool)) != len(pool):
+        raise InputError("the candidate pool lists an orbit twice")
+    theta = np.asarray(theta, dtype=float)[: model.n_learn]
+    term = model.learnable
+    if isinstance(term, NeuralPotential) and term.members > 1:
+        # the members are fitted each on its own: one information block per member,
+        # predicted under that member alone
+        member = replace(model, learnable=term.member())
+        parts = [(member, block) for block in term.split_members(theta)]
+    else:
+        parts = [(model, theta)]
+    per_part = []
+    for part_model, part_theta in parts:
+        arcs = predicted_plan_arcs(
+            part_model,
+            part_theta,
+            [plans[k] for k in pool],
+            brillouin_radius=brillouin_radius,
+            body_name=body_name,
+            gm_m3_s2=gm_m3_s2,
+            spin_period_s=spin_period_s,
+            escape_factor=escape_factor,
+            tol=tol,
+        )
+        infos = trajectory_informations(part_model, part_theta, arcs, mapper=mapper)
+        kept = [pool[int(c)] for c in arcs.trajectory_info["candidate"]]
+        per_part.append(dict(zip(kept, infos, strict=True)))
+    candidates = [k for k in pool if all(k in part for part in per_part)]
+    dropped = [k for k in pool if k not in candidates]
+    if not candidates:
+        raise InputError("every candidate orbit diverged or escaped under the model")
+    cand_infos = [tuple(part[k] for part in per_part) for k in candidates]
+    n_pick = min(picks, len(candidates))
+    start = L_acc if L_acc is not None else tuple(np.zeros_like(b) for b in cand_infos[0])
+    chosen, logdets, gains = greedy_d_optimal(cand_infos, n_pick, L_start=start)
+    total = _blocks(start)
+    for c in chosen:
+        total = tuple(a + b for a, b in zip(total, cand_infos[c], strict=True))
+    return {
+        "picked": [candidates[c] for c in chosen],
+        "gains": [float(g) for g in gains],
+        "logdets": [float(v) for v in logdets],
+        "dropped": dropped,
+        "L_acc": total,
+    }
 
 
 def select_orbits(

@@ -7,20 +7,35 @@ direction within ``cone_deg`` of the centre): the fall then takes about an hour 
 in the paper. It is propagated (truth or fitted model) until it touches the surface
 (:func:`hamgrav.core.propagation.propagate_to_contact`). Descents that escape, diverge or do
 not touch down within ``max_duration_s`` are "not landed".
+
+:func:`tracked_descents` turns descents simulated under the truth into tracking data: each
+descent is one arc of the orbital arcs' sample count and cadence, ending at contact, observed
+with the same noise model (:func:`hamgrav.sim.tracking.observe`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..bodies.catalogue import Body
-from ..core.model import DEFAULT_FIT_TOLERANCE, Model
-from ..core.propagation import Touchdown, propagate_to_contact
+from ..bodies.interiors import Truth
+from ..core.arcs import Arcs
+from ..core.model import DEFAULT_FIT_TOLERANCE, TRUTH_TOLERANCE, Model
+from ..core.propagation import Touchdown, propagate_scalar, propagate_to_contact
+from ..errors import InputError, SimulationError
+from .tracking import TrackingConfig, observe
 
-__all__ = ["DescentConfig", "Touchdown", "release_states", "descend", "miss_statistics"]
+__all__ = [
+    "DescentConfig",
+    "Touchdown",
+    "release_states",
+    "descend",
+    "tracked_descents",
+    "miss_statistics",
+]
 
 
 @dataclass(frozen=True)
@@ -90,6 +105,95 @@ def descend(
         propagate_to_contact(model, s, triangles, params=params, tol=tol, **settings)
         for s in release
     ]
+
+
+def tracked_descents(
+    truth: Truth,
+    count: int,
+    descents: DescentConfig = DescentConfig(),
+    tracking: TrackingConfig | None = None,
+    *,
+    seed: int = 0,
+    max_draws: int | None = None,
+) -> Arcs:
+    """``count`` descents flown under ``truth`` and tracked as one arc each.
+
+    Release states are drawn as in :func:`release_states` (seeded by ``seed``; the first
+    ``count`` draws are those of a draw of ``count``) and propagated under the truth to
+    contact. A descent that does not land, or lands less than one arc's length
+    (``samples_per_arc - 1`` times ``cadence_s``) after release, is skipped and the next draw
+    taken (at most ``max_draws``, default ``count + tracking.max_redraws``). ``tracking``
+    (default :class:`~hamgrav.sim.tracking.TrackingConfig`) gives the orbital arcs'
+    samples per arc, cadence and noise. Each arc holds
+    ``samples_per_arc`` samples ``cadence_s`` [s] apart, the last at the contact time, observed
+    with the orbital arcs' noise (sigma_r = ``tracking.sigma_r_m`` [m] per position component,
+    sigma_v = omega sigma_r ``velocity_noise_ratio``), noise seeded by (``seed``, 1).
+
+    Returns canonical :class:`Arcs` (trajectory kind "descent"); ``trajectory_info`` holds per
+    descent its ``initial_state`` (canonical release state), ``release_radius_rb`` [R_B],
+    ``dv_m_s`` [m/s], ``duration_s`` (release to contact [s]), ``contact_point`` (canonical)
+    and ``draw`` (index among the release draws).
+    """
+    if count < 1:
+        raise InputError(f"count must be at least 1, got {count}")
+    tracking = TrackingConfig() if tracking is None else tracking
+    body = truth.body
+    units = body.units
+    max_draws = count + tracking.max_redraws if max_draws is None else int(max_draws)
+    release, dvs = release_states(body, replace(descents, count=max(max_draws, count)), seed)
+    cadence = float(units.to_time(tracking.cadence_s))
+    offsets = cadence * np.arange(tracking.samples_per_arc)
+    kept, times, true_states, contacts = [], [], [], []
+    for k, state0 in enumerate(release):
+        if len(kept) == count:
+            break
+        (td,) = descend(truth.model, [], state0[None], body, descents, tol=TRUTH_TOLERANCE)
+        if not td.landed or td.time < offsets[-1]:
+            continue
+        grid = td.time - offsets[::-1]
+        states, ok = propagate_scalar(truth.model, state0, grid, tol=TRUTH_TOLERANCE)
+        if not ok or not np.all(np.isfinite(states)):
+            continue
+        kept.append(k)
+        times.append(grid)
+        true_states.append(states)
+        contacts.append(td)
+    if len(kept) < count:
+        raise SimulationError(
+            f"only {len(kept)} of {max_draws} descents landed at least one arc's length after "
+            f"release; {count} were asked for"
+        )
+    sigma_r = float(units.to_length(tracking.sigma_r_m))
+    sigma_v = tracking.velocity_noise_ratio * sigma_r  # omega = 1 in canonical units
+    true_states = np.stack(true_states)
+    noisy = observe(true_states, sigma_r, sigma_v, np.random.default_rng([seed, 1]))
+    info = {
+        "initial_state": release[kept],
+        "release_radius_rb": np.full(count, descents.release_radius_rb),
+        "dv_m_s": dvs[kept],
+        "duration_s": np.array([td.time for td in contacts]) * units.time_s,
+        "contact_point": np.array([td.point for td in contacts]),
+        "draw": np.asarray(kept),
+    }
+    return Arcs(
+        times=np.stack(times),
+        states=noisy,
+        true_states=true_states,
+        trajectory=np.arange(count, dtype=np.int64),
+        trajectory_kind=tuple("descent" for _ in kept),
+        trajectory_info=info,
+        body_name=body.name,
+        gm_m3_s2=body.gm_m3_s2,
+        spin_period_s=body.spin_period_s,
+        body_origin_m=tuple(body.origin_m),
+        sigma_r_m=tracking.sigma_r_m,
+        sigma_v_m_s=tracking.velocity_noise_ratio * tracking.sigma_r_m * units.omega_rad_s,
+        truth=truth.mascons,
+        interior=truth.interior,
+        interior_parameters=dict(truth.parameters),
+        seed=seed,
+        config={"descents": count, "release_radius_rb": descents.release_radius_rb},
+    )
 
 
 def miss_statistics(truth: list[Touchdown], model: list[Touchdown], length_m: float) -> dict:
