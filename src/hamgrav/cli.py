@@ -493,10 +493,10 @@ def evaluate(
         console.print(_covariance_note(uncertainty["covariance"]), highlight=False)
         console.print(
             escape(
-                "sigma_V [m^2/s^2]: formal, from the tracking noise (anchors included) scaled by "
-                "the a posteriori variance factor; 1 / 2 sigma: the fractions of points whose error "
-                "is within 1 and 2 sigma_V, 0.68 and 0.95 when sigma_V is honest (fewer: model "
-                "error, e.g. omitted degrees, dominates)"
+                "sigma_V [m^2/s^2]: formal, from the tracking noise (anchors included) scaled "
+                "by the a posteriori variance factor; 1 / 2 sigma: the fractions of points whose "
+                "error is within 1 and 2 sigma_V, 0.68 and 0.95 when sigma_V is honest (fewer: "
+                "model error, e.g. omitted degrees, dominates)"
             ),
             highlight=False,
         )
