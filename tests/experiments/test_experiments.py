@@ -368,13 +368,15 @@ def test_uncertainty_tiny(tmp_path):
     assert result.exit_code == 0, result.output
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
-    assert set(rep["covariance"]) == {"sh2", "network-best"}
+    assert set(rep["covariance"]) == {"sh2", "network-best", "network-best+penalty"}
     assert rep["covariance"]["sh2"]["ranks"] == [5]  # SH: every direction constrained
     net = rep["covariance"]["network-best"]
     assert net["members"] == 3 and all(0 < r <= 16 for r in net["ranks"])
-    assert set(rep["calibration"]) == {
-        f"{m} {s}" for m in ("sh2", "network-best") for s in ("r1.2", "h30m")
-    }
+    # the penalty's rows constrain directions the arcs leave free
+    penalised = rep["covariance"]["network-best+penalty"]["ranks"]
+    assert all(p >= r for p, r in zip(penalised, net["ranks"], strict=True))
+    models = ("sh2", "network-best", "network-best+penalty")
+    assert set(rep["calibration"]) == {f"{m} {s}" for m in models for s in ("r1.2", "h30m")}
     row = rep["calibration"]["sh2 r1.2"]
     assert 0 <= row["within_1_sigma"] <= row["within_2_sigma"] <= 1 and row["rms_sigma_m2_s2"] > 0
     assert list(rep["thresholds"]["network-best"]) == ["1e-12", "1e-09", "1e-06"]

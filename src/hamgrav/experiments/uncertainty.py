@@ -11,10 +11,12 @@ the fractions within 1 and 2 sigma (0.68 and 0.95 when honest) and the median |e
 sigma (0.67 when honest).
 
 Also recorded: the same with the a priori covariance (the stated noise, no variance factor);
-for the network, the rank threshold's effect, the sigma the members' block-diagonal
-covariance would give (as if each member had its own noise draw), and the members' spread
-(their standard deviation / sqrt(members), what the initialisations alone leave uncertain),
-alone and added in quadrature to the formal sigma.
+the rank threshold's effect; for the network, the row ``network-best+penalty``: the same fit
+with the harmonic penalty's Gauss-Newton rows in each member's normal matrix (the noise
+response of the penalised fit rather than what the arcs alone constrain), the sigma the
+members' block-diagonal covariance would give (as if each member had its own noise draw),
+and the members' spread (their standard deviation / sqrt(members), what the initialisations
+alone leave uncertain), alone and added in quadrature to the formal sigma.
 """
 
 from __future__ import annotations
@@ -116,9 +118,18 @@ class UncertaintyExperiment(Experiment):
             "fits": {n: e.fitted_.solver for n, e in fits.items()},
         }
         figure = {"sets": {}, "r_b": truth.body.brillouin_radius}
+        variants = []  # (row, estimator, normal system)
         for name, est in fits.items():
-            model, params = est.model_, est.params_
             system = normal_system(est.fitted_, arcs, train=est.train_)
+            variants.append((name, est, system))
+            term = est.model_.learnable
+            if isinstance(term, NeuralPotential) and config.harmonic:
+                # the same fit with the harmonic penalty's rows in each member's normal matrix
+                member = replace(est.model_, learnable=term.member())
+                penalty = est.harmonic_penalty(member, arcs)
+                variants.append((f"{name}+penalty", est, system.with_penalty(penalty, est.fitted_)))
+        for name, est, system in variants:
+            model, params = est.model_, est.params_
             covs = {t: system.covariance(t) for t in config.thresholds}
             head = covs[config.thresholds[0]]
             result["covariance"][name] = head.describe()
@@ -128,7 +139,7 @@ class UncertaintyExperiment(Experiment):
                 + "/".join(f"{f:.3g}" for f in head.variance_factors)
             )
             scan = {}
-            network = isinstance(model.learnable, NeuralPotential)
+            network = name == "network-best"
             extra = {"block_diagonal_sigma_ratio": {}, "spread": {}, "formal_plus_spread": {}}
             scaled = head.scaled()
             for set_name, pts in sets.items():
@@ -145,7 +156,8 @@ class UncertaintyExperiment(Experiment):
                         for k, v in calibration(err, _sigma(g, c.scaled())).items()
                         if k != "rms_z"
                     }
-                figure["sets"].setdefault(set_name, {"points": pts})[name] = (err, sigma)
+                if not name.endswith("+penalty"):
+                    figure["sets"].setdefault(set_name, {"points": pts})[name] = (err, sigma)
                 if network:
                     block = _sigma(g, head.block_diagonal(scaled))
                     extra["block_diagonal_sigma_ratio"][set_name] = round(

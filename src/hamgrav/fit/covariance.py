@@ -21,12 +21,14 @@ network is not: most of its directions leave the arcs unchanged, the fit does no
 away from the initialisation, and the noise does not either, so they carry no formal
 variance (the error that lives there is model error, see below).
 
-Networks. M is the *data-only* normal matrix: the harmonic penalty's rows (part of the LM
-objective, :mod:`hamgrav.fit.harmonic`) are left out, so C describes what the arcs alone
-constrain; with them M would be larger in the directions the penalty also fixes and C
-smaller there. An ensemble (members > 1, the learned potential the members' mean) is the
-stacked vector of the members' parameters, each member fitted on its own to the *same*
-arcs: member k's estimate moves by M_k^+ A_k^T W^2 n under the common noise n, so
+Networks. M is by default the *data-only* normal matrix: the harmonic penalty's rows (part
+of the LM objective, :mod:`hamgrav.fit.harmonic`) are left out, so C describes what the arcs
+alone constrain. Given the penalty (``penalty=``), its Gauss-Newton rows J^T J join M as the
+Kaula weight does for SH, and C is the noise response of the penalised fit: smaller in the
+directions the penalty also fixes. An ensemble (members > 1, the learned potential the
+members' mean) is the stacked vector of the members' parameters, each member fitted on its
+own to the *same* arcs: member k's estimate moves by M_k^+ A_k^T W^2 n under the common
+noise n, so
 
     C_kl = M_k^+ (A_k^T W S W A_l) M_l^+
 
@@ -153,6 +155,17 @@ class NormalSystem:
     cost: tuple[float, ...]
     noise_trace: tuple[float, ...]
 
+    def with_penalty(self, penalty, fitted: FittedModel) -> NormalSystem:
+        """The same system with a regulariser's Gauss-Newton rows J_k^T J_k added to each
+        member's normal matrix (``penalty.terms(theta_k) -> (rows, J_k)`` at member k's
+        fitted parameters; see :func:`normal_system`)."""
+        _, blocks = _members(fitted)
+        prior = tuple(
+            p + jac.T @ jac
+            for p, (_, jac) in zip(self.prior, (penalty.terms(b) for b in blocks), strict=True)
+        )
+        return replace(self, prior=prior)
+
     def covariance(self, threshold: float = RANK_THRESHOLD) -> ParameterCovariance:
         """C with the pseudo-inverse over eigenvalues above ``threshold`` x the largest, and
         the a posteriori variance factors (module docstring)."""
@@ -249,6 +262,7 @@ def normal_system(
     *,
     train: np.ndarray | None = None,
     anchors: bool = True,
+    penalty=None,
     chunk: int = 16,
 ) -> NormalSystem:
     """One pass over the ``train`` arcs (default: :func:`training_arcs`) of ``arcs`` (the
@@ -256,8 +270,13 @@ def normal_system(
     fitted parameters, accumulated into a :class:`NormalSystem`. With ``anchors`` (the
     default) the noise of each arc's anchor is propagated along the arc with the state
     transition matrix Phi_k = d x_k / d x_0: the noise of the residual at sample k is
-    e_k = n_k - Phi_k n_0, so S_e is block-diagonal per arc rather than diagonal. SH and
-    network models only; models with per-trajectory terms raise InputError."""
+    e_k = n_k - Phi_k n_0, so S_e is block-diagonal per arc rather than diagonal.
+    ``penalty`` (a network's :class:`~hamgrav.fit.harmonic.HarmonicPenalty` on one member's
+    model, e.g. from :meth:`~hamgrav.fit.estimator.GravityEstimator.harmonic_penalty`) adds
+    its Gauss-Newton rows J^T J at each member's parameters to that member's normal matrix,
+    as the Kaula weight does for SH: C is then the noise response of the penalised fit
+    instead of what the arcs alone constrain. SH and network models only; models with
+    per-trajectory terms raise InputError."""
     member_model, blocks = _members(fitted)
     if train is None:
         train = training_arcs(fitted, arcs)
@@ -303,9 +322,10 @@ def normal_system(
     alpha = float(fitted.solver.get("kaula_alpha", 0.0) or 0.0)
     if alpha and isinstance(member_model.learnable, SphericalHarmonics):
         prior[0] = np.diag(alpha * kaula_diagonal(problem))
-    return NormalSystem(
+    system = NormalSystem(
         tuple(normal), tuple(prior), middle, tuple(cost.tolist()), tuple(trace.tolist())
     )
+    return system if penalty is None else system.with_penalty(penalty, fitted)
 
 
 def parameter_covariance(
@@ -314,11 +334,13 @@ def parameter_covariance(
     *,
     train: np.ndarray | None = None,
     anchors: bool = True,
+    penalty=None,
     threshold: float = RANK_THRESHOLD,
 ) -> ParameterCovariance:
     """The :class:`ParameterCovariance` of ``fitted`` from its ``arcs`` (see
     :func:`normal_system` and the module docstring)."""
-    return normal_system(fitted, arcs, train=train, anchors=anchors).covariance(threshold)
+    system = normal_system(fitted, arcs, train=train, anchors=anchors, penalty=penalty)
+    return system.covariance(threshold)
 
 
 def formal_covariance(

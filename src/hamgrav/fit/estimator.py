@@ -454,12 +454,14 @@ class GravityEstimator:
             estimate_trajectory_params=self.estimate_trajectory_params,
             trajectory_values=self.trajectory_values,
             sigmas=noise_sigmas(arcs) if self.weighted else None,
-            regulariser=self._harmonic_penalty(model, arcs),
+            regulariser=self.harmonic_penalty(model, arcs),
         )
 
-    def _harmonic_penalty(self, model: Model, arcs: Arcs) -> HarmonicPenalty | None:
-        """The harmonic penalty of a network fit (None without ``harmonic`` or for SH):
-        collocation points outside the body out to the farthest tracked sample, seeded."""
+    def harmonic_penalty(self, model: Model, arcs: Arcs) -> HarmonicPenalty | None:
+        """The harmonic penalty of a network fit of ``model`` to ``arcs`` (None without
+        ``harmonic`` or for SH): collocation points outside the body out to the farthest
+        tracked sample, seeded. For an ensemble, each member's fit uses the penalty of the
+        member's model (the formal covariance rebuilds it that way)."""
         if not self.harmonic or not isinstance(model.learnable, NeuralPotential):
             return None
         if self.solver_name == "adam":
