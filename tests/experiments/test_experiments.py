@@ -362,7 +362,7 @@ def test_uncertainty_tiny(tmp_path):
     out = tmp_path / "uncertainty"
     args = [
         "experiment", "uncertainty", *TINY_CAMPAIGN, "--sh-degrees", "2", "--hidden", "3",
-        "--lm-iterations", "3", "--shells-rb", "1.2", "-o", str(out),
+        "--lm-iterations", "3", "--shells-rb", "1.2", "--redraws", "1", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -381,6 +381,10 @@ def test_uncertainty_tiny(tmp_path):
     assert 0 <= row["within_1_sigma"] <= row["within_2_sigma"] <= 1 and row["rms_sigma_m2_s2"] > 0
     assert list(rep["thresholds"]["network-best"]) == ["1e-12", "1e-09", "1e-06"]
     assert set(rep["network"]["spread"]) == {"r1.2", "h30m"}
+    # one redraw: the spread of two fits of the same arcs with other noise
+    assert set(rep["redraws"]) == set(rep["calibration"])
+    assert rep["redraws"]["sh2 r1.2"]["rms_spread_m2_s2"] > 0
+    assert "### The noise response: refits to noise redraws" in (out / "README.md").read_text()
     readme = (out / "README.md").read_text()
     assert "| sh2 | shell 1.2 R_B |" in readme and "hamgrav experiment uncertainty" in readme
     assert (out / "maps.png").stat().st_size > 1000 and (out / "calibration.png").is_file()

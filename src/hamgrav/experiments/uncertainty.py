@@ -11,12 +11,14 @@ the fractions within 1 and 2 sigma (0.68 and 0.95 when honest) and the median |e
 sigma (0.67 when honest).
 
 Also recorded: the same with the a priori covariance (the stated noise, no variance factor);
-the rank threshold's effect; for the network, the row ``network-best+penalty``: the same fit
-with the harmonic penalty's Gauss-Newton rows in each member's normal matrix (the noise
-response of the penalised fit rather than what the arcs alone constrain), the sigma the
-members' block-diagonal covariance would give (as if each member had its own noise draw),
-and the members' spread (their standard deviation / sqrt(members), what the initialisations
-alone leave uncertain), alone and added in quadrature to the formal sigma.
+the refits' spread under noise redraws of the same arcs (the noise response that the formal
+sigma predicts, without the truth); the rank threshold's effect; for the network, the row
+``network-best+penalty``: the same fit with the harmonic penalty's Gauss-Newton rows in each
+member's normal matrix (the noise response of the penalised fit rather than what the arcs
+alone constrain), the sigma the members' block-diagonal covariance would give (as if each
+member had its own noise draw), and the members' spread (their standard deviation /
+sqrt(members), what the initialisations alone leave uncertain), alone and added in
+quadrature to the formal sigma.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ from ..core.model import evaluate_field
 from ..core.terms import NeuralPotential
 from ..core.uncertainty import potential_gradient
 from ..fit.covariance import RANK_THRESHOLD, calibration, normal_system
+from ..fit.estimator import noise_sigmas
+from ..sim.tracking import observe
 from .common import (
     CampaignConfig,
     errors_of,
@@ -56,6 +60,11 @@ class UncertaintyExperimentConfig(CampaignConfig):
     harmonic: float = harmonic_option()
     shells_rb: tuple[float, ...] = option((1.05, 1.2, 1.5), "Evaluation shells [R_B].")
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
+    redraws: int = option(
+        2,
+        "Noise redraws of the same arcs (same truth, orbits and initialisations), each "
+        "fitted again: the refits' spread is the noise response the formal sigma predicts.",
+    )
     thresholds: tuple[float, ...] = option(
         (RANK_THRESHOLD, 1e-9, 1e-6),
         "Relative eigenvalue thresholds of the pseudo-inverse: the first gives the headline "
@@ -83,7 +92,7 @@ class UncertaintyExperiment(Experiment):
     name = "uncertainty"
     title = "How sure: calibration of the formal sigma of the learned potential"
     config_type = UncertaintyExperimentConfig
-    aggregate_keys = ("calibration", "calibration_a_priori", "field_error")
+    aggregate_keys = ("calibration", "calibration_a_priori", "redraws", "field_error")
     default_output = "results/uncertainty-itokawa"
     figure_captions = {
         "maps.png": "the true error of each model's perturbing potential (left) and its "
@@ -102,6 +111,7 @@ class UncertaintyExperiment(Experiment):
         )
         fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
         sets = sets_for(truth, config.shells_rb, (config.altitude_m,), ctx.seed)
+        refit_spread = _refit_spread(config, ctx, truth, arcs, rows, fits, sets)
         scale = float(truth.body.units.from_potential(1.0))  # canonical potential [m^2/s^2]
         result = {
             "body": config.body,
@@ -112,6 +122,7 @@ class UncertaintyExperiment(Experiment):
             "thresholds": {},
             "covariance": {},
             "network": {},
+            "redraws": {},
             "field_error": {
                 n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()
             },
@@ -150,6 +161,15 @@ class UncertaintyExperiment(Experiment):
                 key = f"{name} {set_name}"
                 result["calibration"][key] = _row(err, sigma, scale)
                 result["calibration_a_priori"][key] = _row(err, _sigma(g, head.matrix), scale)
+                if refit_spread:
+                    refits = refit_spread[name.removesuffix("+penalty")][set_name]
+                    rms_spread = float(np.sqrt(np.mean(refits**2)))
+                    rms_sigma = float(np.sqrt(np.mean(sigma**2)))
+                    result["redraws"][key] = {
+                        "rms_spread_m2_s2": scale * rms_spread,
+                        "rms_sigma_m2_s2": scale * rms_sigma,
+                        "sigma_over_spread": round(rms_sigma / rms_spread, 4),
+                    }
                 for t, c in covs.items():
                     scan.setdefault(f"{t:g}", {"ranks": list(c.ranks)})[set_name] = {
                         k: round(v, 4)
@@ -163,10 +183,10 @@ class UncertaintyExperiment(Experiment):
                     extra["block_diagonal_sigma_ratio"][set_name] = round(
                         float(np.sqrt(np.mean(block**2) / np.mean(sigma**2))), 4
                     )
-                    spread = _member_spread(model, params, pts)
-                    extra["spread"][set_name] = _row(err, spread, scale)
+                    members = _member_spread(model, params, pts)
+                    extra["spread"][set_name] = _row(err, members, scale)
                     extra["formal_plus_spread"][set_name] = _row(
-                        err, np.hypot(sigma, spread), scale
+                        err, np.hypot(sigma, members), scale
                     )
             result["thresholds"][name] = scan
             if network:
@@ -192,6 +212,31 @@ class UncertaintyExperiment(Experiment):
             "maps.png": maps_figure(data, scale, title),
             "calibration.png": calibration_figure(data, scale, title),
         }
+
+
+def _refit_spread(config, ctx, truth, arcs, rows, fits, sets) -> dict:
+    """{row: {set: (k,) standard deviation of the perturbing potential over the fit and its
+    refits to ``config.redraws`` noise redraws of the same true arcs}} (canonical; empty
+    without redraws). Each refit starts from the same seeded initialisations and holds out
+    the same arcs: only the noise differs."""
+    if config.redraws < 1:
+        return {}
+    values = {
+        n: {s: [model_perturbing_potential(e.model_, e.params_, p)] for s, p in sets.items()}
+        for n, e in fits.items()
+    }
+    sigmas = noise_sigmas(arcs)
+    for k in range(config.redraws):
+        rng = np.random.default_rng([ctx.seed, 1000 + k])
+        noisy = replace(arcs, states=observe(arcs.true_states, sigmas[0], sigmas[3], rng))
+        for name, settings in rows.items():
+            est = fit(f"{name} (redraw {k + 1})", noisy, truth, ctx, **settings)
+            for s, p in sets.items():
+                values[name][s].append(model_perturbing_potential(est.model_, est.params_, p))
+    return {
+        n: {s: np.std(v, axis=0, ddof=1) for s, v in per_set.items()}
+        for n, per_set in values.items()
+    }
 
 
 def _member_spread(model, params, points) -> np.ndarray:
