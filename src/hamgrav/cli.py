@@ -430,7 +430,8 @@ def evaluate(
     Arcs without a truth (imported tracking) give what needs none instead: residuals per arc
     against the noise, a chi-square, and the fitted field on the requested sets.
     --uncertainty (or --sigma) adds the formal standard deviation of the potential,
-    sqrt(g^T C g), with C from the arcs' noise scaled by the a posteriori variance factor
+    sqrt(g^T C g), with C from the arcs' noise through the fit's normal equations (with a
+    network's harmonic penalty when it had one) scaled by the a posteriori variance factor
     (see hamgrav.fit.covariance)."""
     from .bodies.evaluation import evaluation_sets, set_label
     from .core.fields import field_errors
@@ -448,14 +449,17 @@ def evaluate(
             raise InputError(
                 f"arcs are of body {arcs.body_name!r}, the model of {fitted.body_name!r}"
             )
-        sets = evaluation_sets(
-            body_for_arcs(arcs), _floats(shells, "--shells"), _floats(altitude, "--altitude")
-        )
+        body = body_for_arcs(arcs)
+        sets = evaluation_sets(body, _floats(shells, "--shells"), _floats(altitude, "--altitude"))
         report = None
         if uncertainty:
             from .fit.covariance import parameter_covariance, uncertainty_report
+            from .fit.estimator import fitted_harmonic_penalty
 
-            covariance = parameter_covariance(fitted, arcs)
+            # a network fitted with the harmonic penalty: its rows in the normal matrix, as
+            # the Kaula weight of an SH fit (the fit's own noise response)
+            penalty = fitted_harmonic_penalty(fitted, arcs, body)
+            covariance = parameter_covariance(fitted, arcs, penalty=penalty)
             truth = arcs.truth if arcs.has_truth else None
             report = uncertainty_report(fitted, covariance.scaled(), sets, truth)
             report = {"covariance": covariance.describe(), **report}
@@ -507,9 +511,10 @@ def _covariance_note(c: dict) -> str:
     ranks = "/".join(map(str, c["ranks"]))
     factors = "/".join(f"{f:.3g}" for f in c["variance_factors"])
     members = f" (each of {c['members']} members)" if c["members"] > 1 else ""
+    penalty = " by the arcs and the harmonic penalty" if c.get("harmonic_penalty") else ""
     return (
         f"formal covariance: {ranks} of {c['parameters_per_member']} parameter directions "
-        f"constrained{members}, a posteriori variance factor {factors}"
+        f"constrained{penalty}{members}, a posteriori variance factor {factors}"
     )
 
 

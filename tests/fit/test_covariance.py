@@ -22,9 +22,10 @@ from hamgrav.fit.covariance import (
     formal_covariance,
     parameter_covariance,
     sample_covariance,
+    training_arcs,
     uncertainty_report,
 )
-from hamgrav.fit.estimator import GravityEstimator, noise_sigmas
+from hamgrav.fit.estimator import GravityEstimator, fitted_harmonic_penalty, noise_sigmas
 from hamgrav.fit.fitted import FittedModel
 from hamgrav.fit.lm import LevenbergMarquardt
 from hamgrav.fit.residuals import residual_report
@@ -217,3 +218,27 @@ def test_only_sh_and_network_models_have_a_formal_covariance(small_arcs):
     )
     with pytest.raises(InputError, match="computed for SH and network models only"):
         parameter_covariance(fitted, small_arcs)
+
+
+def test_the_fits_harmonic_penalty_joins_the_normal_matrix(network_truth, point_truth):
+    arcs = network_truth[0]
+    solver = LevenbergMarquardt(max_iter=3)
+    est = GravityEstimator(
+        "network", hidden=(3,), members=2, solver=solver, harmonic=1e-5, body=point_truth.body
+    )
+    fitted = est.fit(arcs).fitted_
+    penalty = fitted_harmonic_penalty(fitted, arcs, point_truth.body)
+    member = replace(fitted.model, learnable=fitted.model.learnable.member())
+    np.testing.assert_array_equal(penalty.points, est.harmonic_penalty(member, arcs).points)
+    assert penalty.weight == 1e-5
+    data_only = parameter_covariance(fitted, arcs)
+    penalised = parameter_covariance(fitted, arcs, penalty=penalty)
+    assert penalised.penalised and not data_only.penalised
+    assert all(p >= d for p, d in zip(penalised.ranks, data_only.ranks, strict=True))
+    # the penalty fixes directions the arcs leave loose: less variance there
+    pts = shell_points(1.5 * point_truth.body.brillouin_radius, 20, 1)
+    loose = potential_sigma(fitted.model, fitted.params, data_only.matrix, pts)
+    tight = potential_sigma(fitted.model, fitted.params, penalised.matrix, pts)
+    assert np.mean(tight**2) < np.mean(loose**2)
+    # the estimator's training arcs are the ones the covariance uses by default
+    np.testing.assert_array_equal(training_arcs(fitted, arcs), est.train_)

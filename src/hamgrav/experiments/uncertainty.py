@@ -29,10 +29,9 @@ import numpy as np
 
 from ..core.fields import model_perturbing_potential, perturbing_potential
 from ..core.model import evaluate_field
-from ..core.terms import NeuralPotential
 from ..core.uncertainty import potential_gradient
 from ..fit.covariance import RANK_THRESHOLD, calibration, normal_system
-from ..fit.estimator import noise_sigmas
+from ..fit.estimator import fitted_harmonic_penalty, noise_sigmas
 from ..sim.tracking import observe
 from .common import (
     CampaignConfig,
@@ -133,11 +132,10 @@ class UncertaintyExperiment(Experiment):
         for name, est in fits.items():
             system = normal_system(est.fitted_, arcs, train=est.train_)
             variants.append((name, est, system))
-            term = est.model_.learnable
-            if isinstance(term, NeuralPotential) and config.harmonic:
+            penalty = fitted_harmonic_penalty(est.fitted_, arcs, truth.body)
+            if penalty is not None:
                 # the same fit with the harmonic penalty's rows in each member's normal matrix
-                member = replace(est.model_, learnable=term.member())
-                penalty = est.harmonic_penalty(member, arcs)
+                # (what evaluate --uncertainty reports for such a fit)
                 variants.append((f"{name}+penalty", est, system.with_penalty(penalty, est.fitted_)))
         for name, est, system in variants:
             model, params = est.model_, est.params_

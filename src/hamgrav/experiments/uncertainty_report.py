@@ -84,7 +84,8 @@ def uncertainty_readme(report: dict) -> list[str]:
         "(the harmonic penalty's rows are left out), the members' cross-covariances included "
         "(they share the noise), the mean's 1/3 in g. `network-best+penalty` is the same fit "
         "with the harmonic penalty's Gauss-Newton rows J^T J in each member's normal matrix "
-        "(as a Kaula weight would be for SH): the noise response of the penalised fit.",
+        "(as a Kaula weight would be for SH): the noise response of the penalised fit, and "
+        "what `hamgrav evaluate --uncertainty` reports for a network fitted with the penalty.",
         "",
         "## Calibration",
         "",

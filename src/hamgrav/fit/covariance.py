@@ -47,12 +47,13 @@ with the fit linearised: for r = (I - A G) e, G = M^+ A^T W^2,
 
 which is N - rank for a weighted fit of white noise (the textbook r^T W r / (N - p)). The
 anchors make S_e far from white and an unweighted fit far from efficient, so N - rank would
-be wrong: on a point-mass truth an unweighted fit of a small network has C some 600 times the
-weighted (Gauss-Markov) covariance and the whitened chi^2 per degree of freedom 2.3 with the
-right model. :meth:`ParameterCovariance.scaled` multiplies member k's block by s_k, the
-(k, l) block by s_k s_l. A factor above 1 says the model does not explain the arcs down to
-the noise (model error, or a noise larger than stated); scaling by it inflates C
-accordingly, but only along the directions the data constrain.
+be wrong: on a point-mass truth an unweighted fit of a small network (2 hidden units, the
+tests' 12 arcs; measured once) has C some 600 times the weighted (Gauss-Markov) covariance
+and the whitened chi^2 per degree of freedom 2.3 with the right model.
+:meth:`ParameterCovariance.scaled` multiplies member k's block by s_k, the (k, l) block by
+s_k s_l. A factor above 1 says the model does not explain the arcs down to the noise (model
+error, or a noise larger than stated); scaling by it inflates C accordingly, but only along
+the directions the data constrain.
 
 :func:`uncertainty_report` turns C into sigma_V(q) = sqrt(g^T C g) on point sets and,
 with a truth, checks it: z = (V_model - V_truth) / sigma_V on the perturbing potential has
@@ -154,6 +155,7 @@ class NormalSystem:
     middle: np.ndarray
     cost: tuple[float, ...]
     noise_trace: tuple[float, ...]
+    penalised: bool = False
 
     def with_penalty(self, penalty, fitted: FittedModel) -> NormalSystem:
         """The same system with a regulariser's Gauss-Newton rows J_k^T J_k added to each
@@ -164,7 +166,7 @@ class NormalSystem:
             p + jac.T @ jac
             for p, (_, jac) in zip(self.prior, (penalty.terms(b) for b in blocks), strict=True)
         )
-        return replace(self, prior=prior)
+        return replace(self, prior=prior, penalised=True)
 
     def covariance(self, threshold: float = RANK_THRESHOLD) -> ParameterCovariance:
         """C with the pseudo-inverse over eigenvalues above ``threshold`` x the largest, and
@@ -200,6 +202,7 @@ class NormalSystem:
             cost=self.cost,
             expected_cost=tuple(expected),
             threshold=float(threshold),
+            penalised=self.penalised,
         )
 
 
@@ -217,6 +220,7 @@ class ParameterCovariance:
             with the fit linearised (module docstring; N - rank for a weighted fit of white
             noise).
         threshold: the relative eigenvalue threshold of the pseudo-inverse.
+        penalised: whether a network's harmonic penalty is in the normal matrix.
     """
 
     matrix: np.ndarray
@@ -225,6 +229,7 @@ class ParameterCovariance:
     cost: tuple[float, ...]
     expected_cost: tuple[float, ...]
     threshold: float
+    penalised: bool = False
 
     @property
     def members(self) -> int:
@@ -253,6 +258,7 @@ class ParameterCovariance:
             "ranks": list(self.ranks),
             "variance_factors": [round(float(f), 4) for f in self.variance_factors],
             "threshold": self.threshold,
+            "harmonic_penalty": self.penalised,
         }
 
 

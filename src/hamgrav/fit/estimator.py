@@ -40,6 +40,7 @@ __all__ = [
     "TERMS",
     "body_for_arcs",
     "body_in_frame",
+    "fitted_harmonic_penalty",
     "noise_sigmas",
     "PRESETS",
     "preset",
@@ -115,6 +116,30 @@ def noise_sigmas(arcs: Arcs) -> np.ndarray:
     sr = float(units.to_length(arcs.sigma_r_m))
     sv = float(units.to_velocity(arcs.sigma_v_m_s))
     return np.array([sr, sr, sr, sv, sv, sv])
+
+
+def fitted_harmonic_penalty(fitted: FittedModel, arcs: Arcs, body: Body):
+    """The harmonic penalty a network fit used, rebuilt from its record on one member's
+    model (its seed, weight and collocation points outside ``body`` out to the farthest
+    sample of ``arcs``, the fit's arcs); None for SH and for fits without it. For the formal
+    covariance of the penalised fit (:func:`hamgrav.fit.covariance.normal_system`)."""
+    info = fitted.solver.get("harmonic")
+    term = fitted.model.learnable
+    if not info or not isinstance(term, NeuralPotential):
+        return None
+    if int(info.get("collocation_points", -1)) != DEFAULT_COLLOCATION_POINTS:
+        raise InputError(
+            f"the fit's harmonic penalty used {info.get('collocation_points')} collocation "
+            f"points; this version rebuilds {DEFAULT_COLLOCATION_POINTS}"
+        )
+    estimator = GravityEstimator(
+        "network",
+        solver="lm",
+        harmonic=float(info["weight"]),
+        seed=int(fitted.solver["seed"]),
+        body=body,
+    )
+    return estimator.harmonic_penalty(replace(fitted.model, learnable=term.member()), arcs)
 
 
 def truth_shell_metric(arcs: Arcs, body: Body, shell_rb: float = 1.05):
