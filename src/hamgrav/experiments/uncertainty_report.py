@@ -82,7 +82,8 @@ def uncertainty_readme(report: dict) -> list[str]:
         "the a posteriori variance factor (the fit's residual sum over its expected value "
         "under the stated noise). For network-best: the data-only normal matrix of each member "
         "(the harmonic penalty's rows are left out), the members' cross-covariances included "
-        "(they share the noise), the mean's 1/3 in g. `network-best+penalty` is the same fit "
+        f"(they share the noise), the mean's 1/{len(best.get('members', [])) or 1} in g. "
+        "`network-best+penalty` is the same fit "
         "with the harmonic penalty's Gauss-Newton rows J^T J in each member's normal matrix "
         "(as a Kaula weight would be for SH): the noise response of the penalised fit, and "
         "what `hamgrav evaluate --uncertainty` reports for a network fitted with the penalty.",
