@@ -166,6 +166,27 @@ def test_evaluate_sigma(imported, arcs_with_truth, tmp_path):
     assert "RMS error / sigma_V" in " ".join(result.output.split())
 
 
+def test_evaluate_uncertainty_of_a_network(imported, arcs_with_truth, tmp_path):
+    model = tmp_path / "net.h5"
+    args = ["fit", str(imported), "--model", "network", "--hidden", "4", "--solver", "lm"]
+    result = runner.invoke(app, [*args, "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(
+        app, ["evaluate", str(model), "--shells", "1.5", "--uncertainty", "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    u = json.loads(result.stdout)["uncertainty"]
+    assert u["covariance"]["members"] == 1 and u["covariance"]["parameters_per_member"] == 21
+    assert 0 < u["covariance"]["ranks"][0] <= 21
+    assert u["r1.5"]["rms_sigma_v_m2_s2"] > 0
+    result = runner.invoke(
+        app, ["evaluate", str(model), "--arcs", str(arcs_with_truth), "--shells", "1.5", "--sigma"]
+    )
+    assert result.exit_code == 0, result.output
+    out = " ".join(result.output.split())
+    assert "1 / 2 sigma" in out and "parameter directions constrained" in out
+
+
 @pytest.fixture(scope="module")
 def arcs_with_truth(small_arcs, tmp_path_factory):
     from hamgrav.io.arcs import save_arcs

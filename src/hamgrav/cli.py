@@ -720,11 +720,12 @@ def evaluate(
         ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    sigma: Annotated[
+    uncertainty: Annotated[
         bool,
         typer.Option(
+            "--uncertainty",
             "--sigma",
-            help="SH models: the formal sigma of the potential on each set (and, with a "
+            help="The formal sigma of the potential on each set, SH or network (and, with a "
             "truth, how well it is calibrated).",
         ),
     ] = False,
@@ -732,8 +733,11 @@ def evaluate(
     """Relative field errors of a fitted model against the truth recorded with the arcs.
 
     Arcs without a truth (imported tracking) give what needs none instead: residuals per arc
-    against the noise, a chi-square, and the fitted field on the requested sets. --sigma adds
-    the formal standard deviation of the potential, sqrt(g^T C g), from the arcs' noise."""
+    against the noise, a chi-square, and the fitted field on the requested sets.
+    --uncertainty (or --sigma) adds the formal standard deviation of the potential,
+    sqrt(g^T C g), with C from the arcs' noise through the fit's normal equations (with a
+    network's harmonic penalty when it had one) scaled by the a posteriori variance factor
+    (see hamgrav.fit.covariance)."""
     from .bodies.evaluation import evaluation_sets, set_label
     from .core.fields import field_errors
     from .fit.estimator import body_for_arcs
@@ -744,14 +748,21 @@ def evaluate(
     altitudes = _floats(altitude, "--altitude (metres above the surface)", 0.0)
     fitted = load_model(model_file)
     arcs = _truth_arcs(fitted, model_file, arcs_file)
-    sets = evaluation_sets(body_for_arcs(arcs), radii, altitudes)
-    uncertainty = None
-    if sigma:
-        from .fit.covariance import formal_covariance, uncertainty_report
+    body = body_for_arcs(arcs)
+    sets = evaluation_sets(body, radii, altitudes)
+    report = None
+    if uncertainty:
+        from .fit.covariance import parameter_covariance, uncertainty_report
+        from .fit.estimator import fitted_harmonic_penalty
 
-        covariance = formal_covariance(fitted, arcs)
+        # a network fitted with the harmonic penalty: its rows in the normal matrix, as
+        # the Kaula weight of an SH fit (the fit's own noise response)
+        penalty = fitted_harmonic_penalty(fitted, arcs, body)
+        covariance = parameter_covariance(fitted, arcs, penalty=penalty)
         truth = arcs.truth if arcs.has_truth else None
-        uncertainty = uncertainty_report(fitted, covariance, sets, truth)
+        report = uncertainty_report(fitted, covariance.scaled(), sets, truth)
+        report = {"covariance": covariance.describe(), **report}
+    uncertainty = report
     if not arcs.has_truth:
         _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, uncertainty)
         return
@@ -772,7 +783,7 @@ def evaluate(
     table.add_column("evaluation set")
     table.add_column("epsilon", justify="right")
     if uncertainty is not None:
-        for col in ("RMS sigma_V [m^2/s^2]", "RMS error / sigma_V", "within 2 sigma"):
+        for col in ("RMS sigma_V", "RMS error / sigma_V", "1 / 2 sigma"):
             table.add_column(escape(col), justify="right")
     for name, value in errors.items():
         cells = [set_label(name), f"{value:.4f}"]
@@ -781,16 +792,33 @@ def evaluate(
             cells += [
                 f"{u['rms_sigma_v_m2_s2']:.3g}",
                 f"{u['rms_z']:.3g}",
-                f"{u['within_2_sigma']:.2f}",
+                f"{u['within_1_sigma']:.2f} / {u['within_2_sigma']:.2f}",
             ]
         table.add_row(*cells)
     console.print(table)
     if uncertainty is not None:
+        console.print(_covariance_note(uncertainty["covariance"]), highlight=False)
         console.print(
-            "sigma_V: formal, from the tracking noise (anchors included); an RMS error / sigma_V "
-            "near 1 means calibrated, far above 1 that model error (omitted degrees) dominates",
+            escape(
+                "sigma_V [m^2/s^2]: formal, from the tracking noise (anchors included) scaled "
+                "by the a posteriori variance factor; 1 / 2 sigma: the fractions of points whose "
+                "error is within 1 and 2 sigma_V, 0.68 and 0.95 when sigma_V is honest (fewer: "
+                "model error, e.g. omitted degrees, dominates)"
+            ),
             highlight=False,
         )
+
+
+def _covariance_note(c: dict) -> str:
+    """One line on a formal covariance: rank per member and variance factors."""
+    ranks = "/".join(map(str, c["ranks"]))
+    factors = "/".join(f"{f:.3g}" for f in c["variance_factors"])
+    members = f" (each of {c['members']} members)" if c["members"] > 1 else ""
+    penalty = " by the arcs and the harmonic penalty" if c.get("harmonic_penalty") else ""
+    return (
+        f"formal covariance: {ranks} of {c['parameters_per_member']} parameter directions "
+        f"constrained{penalty}{members}, a posteriori variance factor {factors}"
+    )
 
 
 NO_TRUTH_NOTE = (
@@ -863,6 +891,8 @@ def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool, uncer
             cells.append(f"{uncertainty[name]['rms_sigma_v_m2_s2']:.3g}")
         table.add_row(*cells)
     console.print(table)
+    if uncertainty:
+        console.print(_covariance_note(uncertainty["covariance"]), highlight=False)
     console.print(NO_TRUTH_NOTE, highlight=False)
 
 

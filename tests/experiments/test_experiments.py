@@ -408,3 +408,35 @@ def test_swarm_option_errors(tmp_path):
     assert result.exit_code == 2
     assert "raise window_s to at least" in result.output
     assert not (tmp_path / "x").exists()
+
+
+def test_uncertainty_tiny(tmp_path):
+    out = tmp_path / "uncertainty"
+    args = [
+        "experiment", "uncertainty", *TINY_CAMPAIGN, "--sh-degrees", "2", "--hidden", "3",
+        "--lm-iterations", "3", "--shells-rb", "1.2", "--redraws", "1", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    rep = data["repetitions"][0]
+    assert set(rep["covariance"]) == {"sh2", "network-best", "network-best+penalty"}
+    assert rep["covariance"]["sh2"]["ranks"] == [5]  # SH: every direction constrained
+    net = rep["covariance"]["network-best"]
+    assert net["members"] == 3 and all(0 < r <= 16 for r in net["ranks"])
+    # the penalty's rows constrain directions the arcs leave free
+    penalised = rep["covariance"]["network-best+penalty"]["ranks"]
+    assert all(p >= r for p, r in zip(penalised, net["ranks"], strict=True))
+    models = ("sh2", "network-best", "network-best+penalty")
+    assert set(rep["calibration"]) == {f"{m} {s}" for m in models for s in ("r1.2", "h30m")}
+    row = rep["calibration"]["sh2 r1.2"]
+    assert 0 <= row["within_1_sigma"] <= row["within_2_sigma"] <= 1 and row["rms_sigma_m2_s2"] > 0
+    assert list(rep["thresholds"]["network-best"]) == ["1e-12", "1e-09", "1e-06"]
+    assert set(rep["network"]["spread"]) == {"r1.2", "h30m"}
+    # one redraw: the spread of two fits of the same arcs with other noise
+    assert set(rep["redraws"]) == set(rep["calibration"])
+    assert rep["redraws"]["sh2 r1.2"]["rms_spread_m2_s2"] > 0
+    assert "### The noise response: refits to noise redraws" in (out / "README.md").read_text()
+    readme = (out / "README.md").read_text()
+    assert "| sh2 | shell 1.2 R_B |" in readme and "hamgrav experiment uncertainty" in readme
+    assert (out / "maps.png").stat().st_size > 1000 and (out / "calibration.png").is_file()

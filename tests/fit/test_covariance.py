@@ -8,15 +8,28 @@ import pytest
 
 from hamgrav.bodies.evaluation import evaluation_sets
 from hamgrav.bodies.interiors import Truth
+from hamgrav.core.fields import shell_points
 from hamgrav.core.mascons import MasconSet
+from hamgrav.core.model import Model, evaluate_field
+from hamgrav.core.problem import ArcProblem
 from hamgrav.core.propagation import state_transition
 from hamgrav.core.shexpansion import sh_potential, sh_term_tables
+from hamgrav.core.terms import NeuralPotential, PointMass
 from hamgrav.core.uncertainty import potential_gradient, potential_sigma
 from hamgrav.errors import InputError
-from hamgrav.fit.covariance import formal_covariance, sample_covariance, uncertainty_report
-from hamgrav.fit.estimator import GravityEstimator
+from hamgrav.fit.covariance import (
+    calibration,
+    formal_covariance,
+    parameter_covariance,
+    sample_covariance,
+    training_arcs,
+    uncertainty_report,
+)
+from hamgrav.fit.estimator import GravityEstimator, fitted_harmonic_penalty, noise_sigmas
+from hamgrav.fit.fitted import FittedModel
+from hamgrav.fit.lm import LevenbergMarquardt
 from hamgrav.fit.residuals import residual_report
-from hamgrav.sim.tracking import OrbitFamily, TrackingConfig, simulate_orbits
+from hamgrav.sim.tracking import OrbitFamily, TrackingConfig, observe, simulate_orbits
 
 FAMILIES = [OrbitFamily(1.4, 20.0), OrbitFamily(1.7, 75.0), OrbitFamily(2.0, 45.0)]
 
@@ -108,18 +121,124 @@ def test_sample_covariance_maps_position_noise_into_momenta():
     assert s[1, 3] == -4.0 and s[0, 4] == 4.0
 
 
-def test_networks_have_no_formal_covariance(small_arcs, synthetic_truth):
-    from hamgrav.core.model import Model
-    from hamgrav.core.terms import NeuralPotential, PointMass
-    from hamgrav.fit.fitted import FittedModel
+@pytest.fixture(scope="module")
+def network_truth(point_truth):
+    """Arcs whose truth is a small network (16 parameters) with noise 100x below the
+    paper's (the linear regime) and a network fitted to one noise draw, with the draws'
+    maker: the network can hold its truth exactly, so its formal errors must be honest."""
+    term = NeuralPotential((3,))
+    model = Model((PointMass(),), term)
+    theta = term.initial_params(5)
+    arcs = simulate_orbits(point_truth, FAMILIES, TrackingConfig(arcs_per_orbit=4), seed=2)
+    arcs = replace(arcs, sigma_r_m=arcs.sigma_r_m / 100, sigma_v_m_s=arcs.sigma_v_m_s / 100)
+    true = ArcProblem(model, replace(arcs, states=arcs.true_states)).predict(theta).states
+    sigmas = noise_sigmas(arcs)
 
-    term = NeuralPotential((4,))
-    fitted = FittedModel(
+    def draw(seed):
+        noisy = observe(true, sigmas[0], sigmas[3], np.random.default_rng(seed))
+        return replace(arcs, states=noisy, true_states=true)
+
+    def refit(a):
+        solver = LevenbergMarquardt(max_iter=60, rtol=1e-12, lambda0=1e-3)
+        est = GravityEstimator("network", hidden=(3,), solver=solver, validation_fraction=0.0)
+        return est.fit(a, init=theta).fitted_
+
+    arcs0 = draw(0)
+    return arcs0, refit(arcs0), draw, refit
+
+
+def test_network_sigma_matches_the_spread_of_refits(network_truth, point_truth):
+    arcs, fitted, draw, refit = network_truth
+    cov = parameter_covariance(fitted, arcs)
+    assert cov.ranks == (16,) and cov.members == 1  # the arcs constrain every direction
+    assert 0.7 < cov.variance_factors[0] < 1.3  # the model holds the truth: residuals = noise
+    pts = shell_points(1.7 * point_truth.body.brillouin_radius, 30, 0)
+    sigma = potential_sigma(fitted.model, fitted.params, cov.matrix, pts)
+    values = []
+    for seed in range(1, 25):
+        f = refit(draw(seed))
+        values.append(evaluate_field(f.model, f.params, pts, which="learnable")[0])
+    spread = np.std(values, axis=0, ddof=1)
+    # 24 redraws: the spread's own scatter is ~15 %
+    assert 0.7 < np.sqrt(np.mean(spread**2) / np.mean(sigma**2)) < 1.35
+    assert 0.7 < np.median(spread / sigma) < 1.35
+
+
+def test_network_covariance_scales_with_the_noise(network_truth):
+    arcs, fitted, _, _ = network_truth
+    cov = parameter_covariance(fitted, arcs)
+    noisier = replace(arcs, sigma_r_m=2 * arcs.sigma_r_m, sigma_v_m_s=2 * arcs.sigma_v_m_s)
+    cov2 = parameter_covariance(fitted, noisier)
+    np.testing.assert_allclose(cov2.matrix, 4 * cov.matrix, rtol=1e-8, atol=0)
+    # a posteriori: the same residuals against a noise stated twice as large
+    np.testing.assert_allclose(cov2.variance_factors[0], cov.variance_factors[0] / 4, rtol=1e-8)
+    np.testing.assert_allclose(cov2.scaled(), cov.scaled(), rtol=1e-8, atol=0)
+    # a threshold above every eigenvalue but the largest keeps one direction
+    assert parameter_covariance(fitted, arcs, threshold=0.999).ranks == (1,)
+
+
+def test_ensemble_members_share_the_noise(network_truth):
+    """Two identical members: their mean is either one, so its sigma is one member's, not
+    1 / sqrt(2) of it (what independent noise per member would give)."""
+    arcs, fitted, _, _ = network_truth
+    term = NeuralPotential((3,), members=2)
+    pair = FittedModel(
         Model((PointMass(),), term),
-        term.initial_params(0),
+        np.concatenate([fitted.params, fitted.params]),
+        fitted.body_name,
+        fitted.gm_m3_s2,
+        fitted.spin_period_s,
+        solver=fitted.solver,
+    )
+    one = parameter_covariance(fitted, arcs)
+    both = parameter_covariance(pair, arcs)
+    assert both.ranks == (16, 16)
+    np.testing.assert_allclose(both.variance_factors, [one.variance_factors[0]] * 2, rtol=1e-9)
+    pts = np.array([[1.2, 0.1, 0.0], [-0.3, 1.1, 0.6]])
+    single = potential_sigma(fitted.model, fitted.params, one.matrix, pts)
+    mean = potential_sigma(pair.model, pair.params, both.matrix, pts)
+    np.testing.assert_allclose(mean, single, rtol=1e-7)
+    independent = potential_sigma(pair.model, pair.params, both.block_diagonal(), pts)
+    np.testing.assert_allclose(independent, single / np.sqrt(2), rtol=1e-7)
+
+
+def test_calibration_counts():
+    out = calibration(np.array([0.5, -1.5, 3.0, 0.1]), np.ones(4))
+    assert out["within_1_sigma"] == 0.5 and out["within_2_sigma"] == 0.75
+    assert out["median_abs_z"] == 1.0
+
+
+def test_only_sh_and_network_models_have_a_formal_covariance(small_arcs):
+    fitted = FittedModel(
+        Model((PointMass(),), None),
+        np.zeros(0),
         "synthetic",
         small_arcs.gm_m3_s2,
         small_arcs.spin_period_s,
     )
-    with pytest.raises(InputError, match="formal covariances are computed for SH models only"):
-        formal_covariance(fitted, small_arcs)
+    with pytest.raises(InputError, match="computed for SH and network models only"):
+        parameter_covariance(fitted, small_arcs)
+
+
+def test_the_fits_harmonic_penalty_joins_the_normal_matrix(network_truth, point_truth):
+    arcs = network_truth[0]
+    solver = LevenbergMarquardt(max_iter=3)
+    est = GravityEstimator(
+        "network", hidden=(3,), members=2, solver=solver, harmonic=1e-5, body=point_truth.body
+    )
+    fitted = est.fit(arcs).fitted_
+    penalty = fitted_harmonic_penalty(fitted, arcs, point_truth.body)
+    member = replace(fitted.model, learnable=fitted.model.learnable.member())
+    np.testing.assert_array_equal(penalty.points, est.harmonic_penalty(member, arcs).points)
+    assert penalty.weight == 1e-5
+    data_only = parameter_covariance(fitted, arcs)
+    penalised = parameter_covariance(fitted, arcs, penalty=penalty)
+    assert penalised.penalised and not data_only.penalised
+    assert all(p >= d for p, d in zip(penalised.ranks, data_only.ranks, strict=True))
+    # the penalty fixes directions the arcs leave loose: less variance there
+    pts = shell_points(1.5 * point_truth.body.brillouin_radius, 20, 1)
+    loose = potential_sigma(fitted.model, fitted.params, data_only.matrix, pts)
+    tight = potential_sigma(fitted.model, fitted.params, penalised.matrix, pts)
+    assert np.mean(tight**2) < np.mean(loose**2)
+    # the estimator's training arcs are the ones the covariance uses by default
+    np.testing.assert_array_equal(training_arcs(fitted, arcs), est.train_)

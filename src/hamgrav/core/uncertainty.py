@@ -45,16 +45,27 @@ def potential_gradient(model: Model, params: np.ndarray, points: np.ndarray) -> 
     points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)).T)
     if f.nparams == 0:  # linear in theta (SH): the gradient does not depend on it
         return f(points).T
-    theta = np.asarray(params, float)[: model.n_learn, None]
-    pars = np.ascontiguousarray(np.broadcast_to(theta, (model.n_learn, points.shape[1])))
+    # the gradient of a network does not contain its output biases (N is linear in them):
+    # the compiled function counts parameters up to the last one it uses
+    theta = np.asarray(params, float)[: f.nparams, None]
+    pars = np.ascontiguousarray(np.broadcast_to(theta, (f.nparams, points.shape[1])))
     return f(points, pars=pars).T
 
 
 def potential_sigma(
-    model: Model, params: np.ndarray, covariance: np.ndarray, points: np.ndarray
+    model: Model,
+    params: np.ndarray,
+    covariance: np.ndarray,
+    points: np.ndarray,
+    chunk: int = 2048,
 ) -> np.ndarray:
     """sigma_V (k,) [canonical potential] at ``points`` (k, 3): sqrt(g^T C g) with C
-    (n_learn, n_learn) the parameters' covariance (module docstring)."""
-    g = potential_gradient(model, params, points)
-    var = np.einsum("ki,ij,kj->k", g, np.asarray(covariance, dtype=float), g)
+    (n_learn, n_learn) the parameters' covariance (module docstring); ``chunk`` points at a
+    time."""
+    points = np.atleast_2d(np.asarray(points, dtype=float))
+    covariance = np.asarray(covariance, dtype=float)
+    var = np.empty(len(points))
+    for i in range(0, len(points), chunk):  # g is (k, n_learn): bounded memory for networks
+        g = potential_gradient(model, params, points[i : i + chunk])
+        var[i : i + chunk] = np.einsum("ki,ki->k", g @ covariance, g)
     return np.sqrt(np.clip(var, 0.0, None))

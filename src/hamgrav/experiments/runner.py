@@ -124,7 +124,16 @@ def register(experiment: Experiment) -> Experiment:
 
 
 def _register_all() -> None:
-    from . import anomalies, continual, deep, descent, interiors, solvers, swarm  # noqa: F401
+    from . import (  # noqa: F401
+        anomalies,
+        continual,
+        deep,
+        descent,
+        interiors,
+        solvers,
+        swarm,
+        uncertainty,
+    )
 
 
 def get_experiment(name: str) -> Experiment:

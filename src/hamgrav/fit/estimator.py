@@ -41,6 +41,7 @@ __all__ = [
     "TERMS",
     "body_for_arcs",
     "body_in_frame",
+    "fitted_harmonic_penalty",
     "noise_sigmas",
     "PRESETS",
     "preset",
@@ -119,6 +120,30 @@ def noise_sigmas(arcs: Arcs) -> np.ndarray:
     sr = float(units.to_length(arcs.sigma_r_m))
     sv = float(units.to_velocity(arcs.sigma_v_m_s))
     return np.array([sr, sr, sr, sv, sv, sv])
+
+
+def fitted_harmonic_penalty(fitted: FittedModel, arcs: Arcs, body: Body):
+    """The harmonic penalty a network fit used, rebuilt from its record on one member's
+    model (its seed, weight and collocation points outside ``body`` out to the farthest
+    sample of ``arcs``, the fit's arcs); None for SH and for fits without it. For the formal
+    covariance of the penalised fit (:func:`hamgrav.fit.covariance.normal_system`)."""
+    info = fitted.solver.get("harmonic")
+    term = fitted.model.learnable
+    if not info or not isinstance(term, NeuralPotential):
+        return None
+    if int(info.get("collocation_points", -1)) != DEFAULT_COLLOCATION_POINTS:
+        raise InputError(
+            f"the fit's harmonic penalty used {info.get('collocation_points')} collocation "
+            f"points; this version rebuilds {DEFAULT_COLLOCATION_POINTS}"
+        )
+    estimator = GravityEstimator(
+        "network",
+        solver="lm",
+        harmonic=float(info["weight"]),
+        seed=int(fitted.solver["seed"]),
+        body=body,
+    )
+    return estimator.harmonic_penalty(replace(fitted.model, learnable=term.member()), arcs)
 
 
 def truth_shell_metric(arcs: Arcs, body: Body, shell_rb: float = 1.05):
@@ -465,12 +490,14 @@ class GravityEstimator:
             estimate_trajectory_params=self.estimate_trajectory_params,
             trajectory_values=self.trajectory_values,
             sigmas=noise_sigmas(arcs) if self.weighted else None,
-            regulariser=self._harmonic_penalty(model, arcs),
+            regulariser=self.harmonic_penalty(model, arcs),
         )
 
-    def _harmonic_penalty(self, model: Model, arcs: Arcs) -> HarmonicPenalty | None:
-        """The harmonic penalty of a network fit (None without ``harmonic`` or for SH):
-        collocation points outside the body out to the farthest tracked sample, seeded."""
+    def harmonic_penalty(self, model: Model, arcs: Arcs) -> HarmonicPenalty | None:
+        """The harmonic penalty of a network fit of ``model`` to ``arcs`` (None without
+        ``harmonic`` or for SH): collocation points outside the body out to the farthest
+        tracked sample, seeded. For an ensemble, each member's fit uses the penalty of the
+        member's model (the formal covariance rebuilds it that way)."""
         if not self.harmonic or not isinstance(model.learnable, NeuralPotential):
             return None
         if self.solver_name == "adam":
