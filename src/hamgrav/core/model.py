@@ -179,19 +179,27 @@ def compiled_integrators(
     model: Model,
     *,
     variational: bool = False,
+    wrt: str = "params",
     batch: bool = True,
     tol: float = DEFAULT_FIT_TOLERANCE,
 ) -> CompiledIntegrators:
     """The (cached) Taylor integrator of ``model``: in batch mode (SIMD width of this CPU) or
-    scalar; with ``variational`` it also carries d state / d par for every runtime parameter
-    (first order): 6 + 6 n_par state variables, the sensitivities after the state."""
+    scalar; with ``variational`` it also carries first-order sensitivities after the state:
+    d state / d par for every runtime parameter (``wrt="params"``: 6 + 6 n_par state
+    variables) or d state / d initial state (``wrt="state"``: 6 + 36, the state transition
+    matrix)."""
     width = int(hy.recommended_simd_size()) if batch else 1
+    if wrt not in ("params", "state"):
+        raise ValueError(f"wrt must be 'params' or 'state', got {wrt!r}")
 
     def build():
         sys = model.system()
         n_par = model.n_system_params
         n_state = 6
-        if variational:
+        if variational and wrt == "state":
+            sys = hy.var_ode_sys(sys, hy.var_args.vars, order=1)
+            n_state = 42
+        elif variational:
             if n_par == 0:
                 raise ValueError("a model with no runtime parameters has no sensitivities")
             sys = hy.var_ode_sys(sys, hy.var_args.params, order=1)
@@ -209,7 +217,7 @@ def compiled_integrators(
             kwargs["pars"] = np.zeros(n_par)
         return CompiledIntegrators(hy.taylor_adaptive(sys, state, **kwargs))
 
-    kind = ("var" if variational else "plain") + ("-batch" if batch else "-scalar")
+    kind = (f"var-{wrt}" if variational else "plain") + ("-batch" if batch else "-scalar")
     return _cached((model.key(), "batch" if batch else "scalar", kind, float(tol), width), build)
 
 

@@ -16,7 +16,6 @@ and the integrators come from the one compile cache of :mod:`hamgrav.core.model`
 from __future__ import annotations
 
 import os
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -24,7 +23,7 @@ import heyoka as hy
 import numpy as np
 
 from .geometry import points_inside
-from .model import DEFAULT_FIT_TOLERANCE, Model, _cached, compiled_integrators
+from .model import DEFAULT_FIT_TOLERANCE, Model, compiled_integrators
 
 __all__ = [
     "BatchPropagation",
@@ -201,17 +200,7 @@ def state_transition(
     starting at ``states0`` (n, 6) at ``times[:, 0]``, runtime parameters (n_system_params, n);
     canonical, Phi[i, 0] = identity. NaN rows for a trajectory that does not reach its last
     time. One compiled scalar integrator (heyoka ``var_ode_sys`` with respect to the state
-    variables), cached like the others."""
-
-    def build():
-        sys = hy.var_ode_sys(model.system(), hy.var_args.vars, order=1)
-        state = np.zeros(42)
-        state[0] = state[4] = 1.0
-        kwargs = {"tol": tol, "compact_mode": True}
-        if model.n_system_params:
-            kwargs["pars"] = np.zeros(model.n_system_params)
-        return hy.taylor_adaptive(sys, state, **kwargs)
-
+    variables), from the compile cache like the others."""
     states0 = np.asarray(states0, dtype=float)
     times = np.asarray(times, dtype=float)
     n, n_m = times.shape
@@ -219,10 +208,11 @@ def state_transition(
     if runtime_params is None:
         runtime_params = np.zeros((n_sys, n))
     runtime_params = np.asarray(runtime_params, dtype=float).reshape(n_sys, n)
-    ta = _cached((model.key(), "transition", "var-state", float(tol)), build)
+    compiled = compiled_integrators(model, variational=True, wrt="state", batch=False, tol=tol)
     out = np.full((n, n_m, 6, 6), np.nan)
     identity = np.eye(6).ravel()
-    with _TRANSITION_LOCK:
+    with compiled.lock:
+        ta = compiled.integrators[0]
         for i in range(n):
             ta.time = float(times[i, 0])
             ta.state[:6] = states0[i]
@@ -234,9 +224,6 @@ def state_transition(
             if len(grid) == n_m and np.all(np.isfinite(grid)):
                 out[i] = grid[:, 6:].reshape(n_m, 6, 6)
     return out
-
-
-_TRANSITION_LOCK = threading.Lock()
 
 
 def _set_scalar(ta, model: Model, state0, t0: float, params) -> None:
