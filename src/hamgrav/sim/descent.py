@@ -26,7 +26,7 @@ from ..core.arcs import Arcs
 from ..core.model import DEFAULT_FIT_TOLERANCE, TRUTH_TOLERANCE, Model
 from ..core.propagation import Touchdown, propagate_scalar, propagate_to_contact
 from ..errors import InputError, SimulationError
-from .tracking import TrackingConfig, observe
+from .tracking import TrackingConfig, observe, simulated_arcs_fields
 
 __all__ = [
     "DescentConfig",
@@ -182,16 +182,7 @@ def tracked_descents(
         trajectory=np.arange(count, dtype=np.int64),
         trajectory_kind=tuple("descent" for _ in kept),
         trajectory_info=info,
-        body_name=body.name,
-        gm_m3_s2=body.gm_m3_s2,
-        spin_period_s=body.spin_period_s,
-        body_origin_m=tuple(body.origin_m),
-        sigma_r_m=tracking.sigma_r_m,
-        sigma_v_m_s=tracking.velocity_noise_ratio * tracking.sigma_r_m * units.omega_rad_s,
-        truth=truth.mascons,
-        interior=truth.interior,
-        interior_parameters=dict(truth.parameters),
-        seed=seed,
+        **simulated_arcs_fields(truth, tracking.sigma_r_m, tracking.velocity_noise_ratio, seed),
         config={"descents": count, "release_radius_rb": descents.release_radius_rb},
     )
 

@@ -41,7 +41,7 @@ from ..core.propagation import Touchdown, propagate_scalar, propagate_to_contact
 from ..core.terms import MasconTerm, SolarRadiationPressure
 from ..errors import InputError, SimulationError
 from ..units import CanonicalUnits
-from .tracking import arc_start_times, observe
+from .tracking import arc_start_times, observe, simulated_arcs_fields
 
 __all__ = [
     "SwarmConfig",
@@ -347,15 +347,6 @@ def simulate_swarm(
         trajectory=np.asarray(trajectory, dtype=np.int64),
         trajectory_kind=tuple("particle" for _ in range(config.particles)),
         trajectory_info=trajectory_info,
-        body_name=body.name,
-        gm_m3_s2=body.gm_m3_s2,
-        spin_period_s=body.spin_period_s,
-        body_origin_m=tuple(body.origin_m),
-        sigma_r_m=config.sigma_r_m,
-        sigma_v_m_s=config.velocity_noise_ratio * config.sigma_r_m * units.omega_rad_s,
-        truth=truth.mascons,
-        interior=truth.interior,
-        interior_parameters=dict(truth.parameters),
-        seed=seed,
+        **simulated_arcs_fields(truth, config.sigma_r_m, config.velocity_noise_ratio, seed),
         config={"swarm": config.as_dict(), "srp": srp.describe()},
     )

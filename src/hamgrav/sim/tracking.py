@@ -33,6 +33,7 @@ __all__ = [
     "draw_orbit_start",
     "orbit_grid",
     "simulate_orbits",
+    "simulated_arcs_fields",
     "observe",
     "MAX_ORBIT_RADIUS_RB",
 ]
@@ -203,6 +204,27 @@ def _touches_or_escapes(truth: Truth, states: np.ndarray, escape_radius: float) 
     return bool(len(close) and points_inside(np.asarray(truth.body.mesh.triangles), close).any())
 
 
+def simulated_arcs_fields(
+    truth: Truth, sigma_r_m: float, velocity_noise_ratio: float, seed: int
+) -> dict:
+    """The :class:`Arcs` fields every simulator fills alike: the truth's body (name, GM
+    [m^3/s^2], spin period [s], frame origin [m]), the noise (sigma_r [m]; sigma_v [m/s] =
+    ``velocity_noise_ratio`` x omega x sigma_r), the truth's mascons and interior, the seed."""
+    body = truth.body
+    return {
+        "body_name": body.name,
+        "gm_m3_s2": body.gm_m3_s2,
+        "spin_period_s": body.spin_period_s,
+        "body_origin_m": tuple(body.origin_m),
+        "sigma_r_m": sigma_r_m,
+        "sigma_v_m_s": velocity_noise_ratio * sigma_r_m * body.units.omega_rad_s,
+        "truth": truth.mascons,
+        "interior": truth.interior,
+        "interior_parameters": dict(truth.parameters),
+        "seed": seed,
+    }
+
+
 def simulate_orbits(
     truth: Truth,
     families: list[OrbitFamily],
@@ -293,15 +315,6 @@ def simulate_orbits(
         trajectory=np.asarray(traj, dtype=np.int64),
         trajectory_kind=tuple("orbit" for _ in families),
         trajectory_info={k: np.asarray(v) for k, v in info.items()},
-        body_name=truth.body.name,
-        gm_m3_s2=truth.body.gm_m3_s2,
-        spin_period_s=truth.body.spin_period_s,
-        body_origin_m=tuple(truth.body.origin_m),
-        sigma_r_m=tracking.sigma_r_m,
-        sigma_v_m_s=tracking.velocity_noise_ratio * tracking.sigma_r_m * units.omega_rad_s,
-        truth=truth.mascons,
-        interior=truth.interior,
-        interior_parameters=dict(truth.parameters),
-        seed=seed,
+        **simulated_arcs_fields(truth, tracking.sigma_r_m, tracking.velocity_noise_ratio, seed),
         config=dict(config or {}),
     )
