@@ -26,6 +26,7 @@ from .common import (
     errors_of,
     fit,
     harmonic_option,
+    lm_iterations_option,
     network_best,
     sets_for,
     simulate,
@@ -65,7 +66,7 @@ class AnomaliesExperimentConfig(CampaignConfig):
     kaula_degrees: tuple[int, ...] = option((8, 16), "SH degrees also fitted with Kaula scans.")
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
     harmonic: float = harmonic_option("shape+network")
-    lm_iterations: int = option(30, "LM iteration cap of each network member.")
+    lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     shells_rb: tuple[float, ...] = option((1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].")
 
 

@@ -13,7 +13,7 @@ from ..bodies.interiors import INTERIORS, TRUTH_FRAMES, Truth
 from ..core.arcs import Arcs
 from ..core.fields import field_errors
 from ..errors import InputError
-from ..fit.estimator import NETWORK_BEST_HARMONIC, GravityEstimator, preset
+from ..fit.estimator import NETWORK_BEST_HARMONIC, NETWORK_BEST_SOLVER, GravityEstimator, preset
 from ..sim.campaign import Campaign, run_campaign
 from ..sim.tracking import TrackingConfig, orbit_grid
 from .config import ExperimentConfig, option
@@ -70,6 +70,10 @@ class CampaignConfig(ExperimentConfig):
         # the option of harmonic_option(), in the experiments that have a network-best row
         if getattr(self, "harmonic", 0.0) < 0:
             raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
+        # the options of lm_iterations_option() and warm-stage caps, where an experiment has them
+        for name in ("lm_iterations", "warm_iterations"):
+            if getattr(self, name, 1) < 1:
+                raise InputError(f"{name} must be at least 1, got {getattr(self, name)}")
         # the campaign file's checks (orbit radii and count, tracking, truth mascons) apply
         # to an experiment's campaign too, before anything runs
         Campaign.from_dict(self.campaign(0).as_dict(), source="campaign")
@@ -128,6 +132,11 @@ def network_best(hidden, lm_iterations: int, *, harmonic: float, **overrides) ->
     best = preset("network-best", hidden=hidden, harmonic=harmonic or None, **overrides)
     best["solver"] = replace(best["solver"], max_iter=lm_iterations)
     return best
+
+
+def lm_iterations_option(help: str = "LM iteration cap of each network-best member."):
+    """The ``lm_iterations`` option of an experiment config: network-best's own cap by default."""
+    return option(NETWORK_BEST_SOLVER.max_iter, help)
 
 
 def harmonic_option(row: str = "network-best"):

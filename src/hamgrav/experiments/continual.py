@@ -10,13 +10,21 @@ warm and from scratch; validation arcs are drawn once per arriving stage and nev
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..fit.continual import fit_continual
-from ..fit.estimator import GravityEstimator, preset
-from .common import CampaignConfig, errors_of, harmonic_option, sets_for, simulate
+from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from .common import (
+    CampaignConfig,
+    errors_of,
+    harmonic_option,
+    lm_iterations_option,
+    network_best,
+    sets_for,
+    simulate,
+)
 from .config import option
 from .continual_report import continual_figure, continual_readme
 from .runner import Experiment, RunContext, RunOutput, register
@@ -31,6 +39,13 @@ class ContinualExperimentConfig(CampaignConfig):
     stages: int = option(4, "Stages (orbits split evenly, in grid order).")
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
     harmonic: float = harmonic_option("network-best")
+    lm_iterations: int = lm_iterations_option(
+        "LM iteration cap of each network member fitted from scratch."
+    )
+    warm_iterations: int = option(
+        NETWORK_WARM_SOLVER.max_iter,
+        "LM iteration cap of each network member at warm-started stages.",
+    )
     sh_degree: int = option(8, "SH degree.")
 
 
@@ -53,8 +68,11 @@ class ContinualExperiment(Experiment):
         groups = np.array_split(np.arange(config.orbits), config.stages)
         arriving = [arcs.arcs_of(g) for g in groups]
         models = {
-            "network-best": preset(
-                "network-best", hidden=config.hidden, harmonic=config.harmonic or None
+            "network-best": network_best(
+                config.hidden,
+                config.lm_iterations,
+                harmonic=config.harmonic,
+                warm_solver=replace(NETWORK_WARM_SOLVER, max_iter=config.warm_iterations),
             ),
             f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
         }

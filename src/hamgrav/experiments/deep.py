@@ -65,6 +65,7 @@ from .common import (
     campaign_artefacts,
     errors_of,
     harmonic_option,
+    lm_iterations_option,
     network_best,
     sets_for,
     simulate,
@@ -138,7 +139,9 @@ class DeepExperimentConfig(CampaignConfig):
     )
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
     harmonic: float = harmonic_option()
-    lm_iterations: int = option(30, "LM iteration cap of each network member at the first stage.")
+    lm_iterations: int = lm_iterations_option(
+        "LM iteration cap of each network member at the first stage."
+    )
     warm_iterations: int = option(
         NETWORK_WARM_SOLVER.max_iter,
         "LM iteration cap of each network member at warm-started stages.",

@@ -31,6 +31,7 @@ from .common import (
     errors_of,
     fit,
     harmonic_option,
+    lm_iterations_option,
     network_best,
     sets_for,
     simulate,
@@ -81,7 +82,7 @@ class DescentExperimentConfig(CampaignConfig):
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
     adam_steps: int = option(1500, "Adam steps of the 'network' row (the paper's protocol).")
     learning_rate: float = option(1e-2, "Adam peak learning rate.")
-    lm_iterations: int = option(30, "LM iteration cap of the 'network-best' row.")
+    lm_iterations: int = lm_iterations_option("LM iteration cap of the 'network-best' row.")
     harmonic: float = harmonic_option()
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
     prior: str = option(

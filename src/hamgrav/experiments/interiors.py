@@ -25,6 +25,7 @@ from .common import (
     errors_of,
     fit,
     harmonic_option,
+    lm_iterations_option,
     network_best,
     sets_for,
     simulate,
@@ -51,7 +52,7 @@ class InteriorsExperimentConfig(CampaignConfig):
     sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH residual degrees (LM).")
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
     harmonic: float = harmonic_option("network-scratch and shape+network")
-    lm_iterations: int = option(30, "LM iteration cap of each network member.")
+    lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
     shells_rb: tuple[float, ...] = option((1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].")
 

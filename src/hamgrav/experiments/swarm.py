@@ -30,7 +30,7 @@ from ..bodies.catalogue import load_body
 from ..bodies.interiors import INTERIORS, build_truth
 from ..errors import InputError
 from ..sim.particles import SwarmConfig, simulate_swarm, solar_radiation_pressure
-from .common import errors_of, fit, harmonic_option, network_best, sets_for
+from .common import errors_of, fit, harmonic_option, lm_iterations_option, network_best, sets_for
 from .config import ExperimentConfig, option
 from .runner import (
     Experiment,
@@ -84,7 +84,7 @@ class SwarmExperimentConfig(ExperimentConfig):
     gravity_only_degree: int = option(8, "SH degree of the gravity-only fit.")
     hidden: tuple[int, ...] = option((16, 16), "Hidden layer sizes of the network.")
     harmonic: float = harmonic_option("network")
-    lm_iterations: int = option(30, "LM iteration cap of the network fits.")
+    lm_iterations: int = lm_iterations_option("LM iteration cap of the network fits.")
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
     shells_rb: tuple[float, ...] = option((1.05, 1.2), "Evaluation shells [R_B].")
 

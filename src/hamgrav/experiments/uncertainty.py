@@ -38,6 +38,7 @@ from .common import (
     errors_of,
     fit,
     harmonic_option,
+    lm_iterations_option,
     network_best,
     sets_for,
     simulate,
@@ -55,7 +56,7 @@ class UncertaintyExperimentConfig(CampaignConfig):
 
     sh_degrees: tuple[int, ...] = option((4, 8), "SH degrees fitted (LM).")
     hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
-    lm_iterations: int = option(30, "LM iteration cap of each network member.")
+    lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     harmonic: float = harmonic_option()
     shells_rb: tuple[float, ...] = option((1.05, 1.2, 1.5), "Evaluation shells [R_B].")
     altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")

@@ -55,20 +55,20 @@ TERMS = ("network", "sh", "none")
 
 
 #: The network fit hamgrav recommends (preset "network-best", an ensemble of three networks
-#: from seeded initialisations, each fitted on its own): 30 Levenberg-Marquardt iterations with
-#: the damping scale floored (weights of tanh units the arcs barely see are damped too, at
-#: 1e-8 of the largest entry), returning the best validation iterate. A floor of 1e-6 left one
-#: draw (seed 4) at r1.2 0.36 and median miss 12.2 m, 1e-8 brings it to 0.12 and 4.9 m;
-#: stopping on a validation plateau, also tried, stopped some draws early. Single fits from
-#: different initialisations of the same arcs (with the harmonic penalty) differ by up to 3.2x
-#: in r1.2 (bench/network_members.py, seeds 0-2: 0.062-0.071, 0.055-0.116, 0.072-0.229); the
-#: members' mean guards against the bad member (ensemble r1.2 0.065, 0.066, 0.108). The
-#: best-validation member did as well on these three draws (0.062, 0.055, 0.075) at the same
-#: cost; the mean is kept until more draws tell them apart. The whole fit of 112 arcs takes
-#: 41 s on 2 cores; with 20 iterations per member 24 s, ensemble r1.2 0.077 / 0.076 / 0.114 /
-#: 0.096 and median misses 3.1 / 3.1 / 5.7 / 3.0 m on seeds 0-3 (30 iterations: 0.065 / 0.066
-#: / 0.108 / 0.096 and 3.8 / 3.0 / 5.7 / 3.0 m).
-NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=30, rtol=1e-9, lambda0=1e-2, damping_floor=1e-8)
+#: from seeded initialisations, each fitted on its own): 20 Levenberg-Marquardt iterations per
+#: member with the damping scale floored (weights of tanh units the arcs barely see are damped
+#: too, at 1e-8 of the largest entry), returning the best validation iterate. A floor of 1e-6
+#: left one draw (seed 4) at r1.2 0.36 and median miss 12.2 m, 1e-8 brings it to 0.12 and
+#: 4.9 m; stopping on a validation plateau, also tried, stopped some draws early. Single fits
+#: from different initialisations of the same arcs (with the harmonic penalty) differ by up to
+#: 3.2x in r1.2 (bench/network_members.py, seeds 0-2: 0.062-0.071, 0.055-0.116, 0.072-0.229);
+#: the members' mean guards against the bad member. The best-validation member did as well on
+#: these three draws at the same cost; the mean is kept until more draws tell them apart.
+#: 20 iterations per member rather than 30: on the eight 112-arc Itokawa descent draws the
+#: median miss is 3.4 m (3.0-5.7) against 3.5 m (2.9-5.7), r1.2 0.076-0.146 against
+#: 0.065-0.142 (results/descent-itokawa-x8 against results/descent-itokawa-x8-lm30), and the
+#: fit of 112 arcs takes about 24 s on 2 cores instead of 41 s.
+NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=20, rtol=1e-9, lambda0=1e-2, damping_floor=1e-8)
 #: Weight of network-best's harmonic penalty (:mod:`hamgrav.fit.harmonic`). On the eight
 #: 112-arc Itokawa descent draws it lowers the median miss from 4.2 to 3.5 m and the worst
 #: draw's from 7.9 to 5.7 m (results/descent-itokawa-x8-no-harmonic against
