@@ -110,6 +110,35 @@ def test_normal_equations_agree_with_design(arcs):
     assert problem.gradient(theta)[1] == pytest.approx(atr, rel=1e-12)
 
 
+def test_whitening_applies_to_every_sample(arcs):
+    """With a whitening W, r_w = (I x W) r and A_w = (I x W) A (one W per sample), the cost
+    is half the whitened residuals' sum of squares, and the normal equations are those of
+    the whitened A and r. A full W (not triangular, not symmetric) tells W from W^T."""
+    sh = SphericalHarmonics(3, 0.7)
+    model = Model((PointMass(),), sh)
+    w = np.random.default_rng(5).standard_normal((6, 6)) + 3 * np.eye(6)
+    plain = ArcProblem(model, arcs)
+    weighted = ArcProblem(model, arcs, whitening=w)
+    theta = np.full(sh.n_params, 1e-3)
+    r, a = plain.design(theta)
+    r_w, a_w = weighted.design(theta)
+    block = np.kron(np.eye(arcs.n_arcs * arcs.samples_per_arc), w)
+    np.testing.assert_allclose(r_w, block @ r, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(a_w, block @ a, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(weighted.residuals(theta).reshape(-1), r_w, rtol=0, atol=0)
+    assert weighted.cost(theta) == pytest.approx(0.5 * np.sum((block @ r) ** 2), rel=1e-12)
+    cost, atr, ata = weighted.normal_equations(theta, chunk=2)
+    assert cost == pytest.approx(0.5 * r_w @ r_w, rel=1e-12)
+    np.testing.assert_allclose(atr, a_w.T @ r_w, rtol=1e-12, atol=1e-20)
+    np.testing.assert_allclose(ata, a_w.T @ a_w, rtol=1e-12, atol=1e-20)
+    assert weighted.gradient(theta)[1] == pytest.approx(atr, rel=1e-12)
+    assert weighted.cost(theta, [1, 3]) == pytest.approx(
+        0.5 * np.sum(r_w.reshape(arcs.n_arcs, -1)[[1, 3]] ** 2), rel=1e-12
+    )
+    with pytest.raises(ValueError, match="finite \\(6, 6\\) matrix"):
+        ArcProblem(model, arcs, whitening=np.ones(6))
+
+
 def test_compiled_once_per_structure():
     m1 = Model((PointMass(),), SphericalHarmonics(3, 0.7))
     m2 = Model((PointMass(),), SphericalHarmonics(3, 0.7))

@@ -25,7 +25,8 @@ def test_noise_sigmas_are_the_arcs_noise(small_arcs):
 def test_weighted_fit_divides_by_the_sigmas(small_arcs, synthetic_truth):
     weighted = GravityEstimator("sh", degree=2, weighted=True, body=synthetic_truth.body)
     weighted.fit(small_arcs)
-    problem = ArcProblem(weighted.model_, small_arcs, sigmas=noise_sigmas(small_arcs))
+    whitening = np.diag(1.0 / noise_sigmas(small_arcs))
+    problem = ArcProblem(weighted.model_, small_arcs, whitening=whitening)
     assert weighted.result_.initial_cost == pytest.approx(problem.cost(np.zeros(5)), rel=1e-12)
     assert weighted.fitted_.solver["weighted"] is True
     plain = GravityEstimator("sh", degree=2, body=synthetic_truth.body).fit(small_arcs)

@@ -47,7 +47,7 @@ def test_lm_noisy_within_formal_covariance(sh_world):
     sigma = np.array([1e-4] * 3 + [1e-5] * 3)
     noisy = arcs.states.copy()
     noisy[:, 1:] += rng.standard_normal(noisy[:, 1:].shape) * sigma  # anchors kept exact
-    problem = ArcProblem(model, replace(arcs, states=noisy), sigmas=sigma)
+    problem = ArcProblem(model, replace(arcs, states=noisy), whitening=np.diag(1 / sigma))
     result = LevenbergMarquardt(rtol=1e-10).solve(problem)
     _, _, ata = problem.normal_equations(result.params)
     d = result.params - c_true

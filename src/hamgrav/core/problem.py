@@ -8,8 +8,11 @@ Global parameter vector ``theta`` = [the learnable term's parameters, then, when
 ``estimate_trajectory_params``, the per-trajectory parameters of every trajectory
 (trajectory-major: trajectory 0's, then trajectory 1's, ...)]. Per-trajectory parameters that
 are not estimated are data (``trajectory_values``). Residuals r = y - x(t; y_0, theta) on
-canonical states (optionally divided by per-component sigmas), cost J = r.r / 2, design
-matrix A = dr/dtheta = -Phi, gradient A^T r, normal matrix A^T A.
+canonical states, cost J = r.r / 2, design matrix A = dr/dtheta = -Phi, gradient A^T r,
+normal matrix A^T A. With a ``whitening`` W (6, 6), every sample's residual and its rows of
+A are whitened: r -> W r, A -> W A (the weighted fit, W from
+:func:`hamgrav.fit.estimator.noise_whitening`); everything above then holds for the whitened
+r and A.
 
 Solvers use an :class:`ArcProblem` only through ``cost``, ``objective``, ``gradient`` and
 ``normal_equations``. An optional ``regulariser`` (residual rows on the learnable parameters,
@@ -50,8 +53,11 @@ class ArcProblem:
             ``per_trajectory`` terms) of every trajectory together with the learnable ones.
         trajectory_values: (n_trajectories, n_trajectory_params) values of the per-trajectory
             parameters when they are data (required then; e.g. SRP area-to-mass [m^2/kg]).
-        sigmas: optional per-component scale (6,) of the residuals (canonical); None = the
-            paper's unweighted canonical residuals.
+        whitening: optional (6, 6) matrix W applied to every sample's residual, r -> W r, and
+            to its sensitivities, A -> W A (canonical; W S W^T = I for the sample noise
+            covariance S whitens the residuals, see
+            :func:`hamgrav.fit.estimator.noise_whitening`); None = the paper's unweighted
+            canonical residuals.
         tol: integrator tolerance.
         threads: worker threads (default: the number of CPUs).
         max_steps: Taylor steps allowed per batch of arcs before a trial is declared stiff.
@@ -66,7 +72,7 @@ class ArcProblem:
         *,
         estimate_trajectory_params: bool = False,
         trajectory_values: np.ndarray | None = None,
-        sigmas: np.ndarray | None = None,
+        whitening: np.ndarray | None = None,
         tol: float = DEFAULT_FIT_TOLERANCE,
         threads: int | None = None,
         max_steps: int = 500,
@@ -94,7 +100,12 @@ class ArcProblem:
         self.n_params = model.n_learn + (
             self.n_trajectories * n_tp if estimate_trajectory_params else 0
         )
-        self.weights = None if sigmas is None else 1.0 / np.asarray(sigmas, dtype=float)
+        if whitening is not None:
+            whitening = np.array(whitening, dtype=float)  # a copy: the caller keeps theirs
+            if whitening.shape != (6, 6) or not np.all(np.isfinite(whitening)):
+                raise ValueError(f"whitening must be a finite (6, 6) matrix, got {whitening!r}")
+            whitening.flags.writeable = False
+        self.whitening = whitening
         self.threads = threads
         self.max_steps = int(max_steps)
 
@@ -175,11 +186,14 @@ class ArcProblem:
         return Prediction(run.states, jac)
 
     # ---------------------------------------------------------------- least squares
+    def _whiten(self, r: np.ndarray) -> np.ndarray:
+        """W r on the last axis (r itself without a whitening)."""
+        return r if self.whitening is None else r @ self.whitening.T
+
     def residuals(self, theta, arc_indices=None) -> np.ndarray:
-        """r = y - x (weighted when sigmas were given), shape (n_arcs, m, 6)."""
+        """r = y - x (whitened when a whitening was given), shape (n_arcs, m, 6)."""
         idx = self._indices(arc_indices)
-        r = self.arcs.states[idx] - self.predict(theta, idx).states
-        return r if self.weights is None else r * self.weights
+        return self._whiten(self.arcs.states[idx] - self.predict(theta, idx).states)
 
     def cost(self, theta, arc_indices=None) -> float:
         """J = r.r / 2 over the selected arcs."""
@@ -187,16 +201,17 @@ class ArcProblem:
         return 0.5 * float(np.sum(r * r))
 
     def design(self, theta, arc_indices=None):
-        """(r, A) with r (N,) and A (N, n_params) for N = arcs x samples x 6 (materialised)."""
+        """(r, A) with r (N,) and A (N, n_params) for N = arcs x samples x 6 (materialised;
+        whitened when a whitening was given)."""
         idx = self._indices(arc_indices)
         pred = self.predict(theta, idx, sensitivities=True)
-        r = self.arcs.states[idx] - pred.states
+        r = self._whiten(self.arcs.states[idx] - pred.states)
         # in place: the prediction's arrays are this call's own, and A is the largest array
         # of a fit (chunk x samples x 6 x n_params)
         a = np.negative(pred.jacobian, out=pred.jacobian)
-        if self.weights is not None:
-            r = r * self.weights
-            a *= self.weights[:, None]
+        if self.whitening is not None:
+            for block in a:  # W A arc by arc, in place: no second array of A's size
+                block[...] = np.matmul(self.whitening, block)
         return r.reshape(-1), a.reshape(-1, self.n_params)
 
     def objective(self, theta, arc_indices=None) -> float:

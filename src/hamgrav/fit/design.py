@@ -8,8 +8,8 @@ matrix is
     Lambda_c = sum over the predicted samples of Phi^T Phi = A^T A,
 
 with Phi = d state / d theta of each arc anchored at its first sample (A = -Phi is the design
-matrix of :class:`hamgrav.core.problem.ArcProblem`; with per-component sigmas, the weighted
-A). The D-optimal score of c given the information accumulated so far, L_acc, is
+matrix of :class:`hamgrav.core.problem.ArcProblem`; with a whitening W, the whitened
+A = -W Phi). The D-optimal score of c given the information accumulated so far, L_acc, is
 
     Delta(c) = logdet(L_acc + Lambda_c + eps I) - logdet(L_acc + eps I),
     eps = max(1e-8, 1e-6 tr(L_acc) / n_p),
@@ -266,7 +266,7 @@ def _problem(problem_or_model, arcs) -> ArcProblem:
 
 def information_matrix(problem_or_model, theta, arcs: Arcs | None = None, arc_indices=None):
     """Lambda = A^T A (n_p, n_p) of the (selected) arcs at ``theta``: the sum over samples of
-    Phi^T Phi. Give an :class:`ArcProblem` (its arcs, weights and SRP settings are used) or a
+    Phi^T Phi. Give an :class:`ArcProblem` (its arcs, whitening and SRP settings are used) or a
     :class:`Model` and ``arcs``. The arcs' states only anchor the propagations."""
     problem = _problem(problem_or_model, arcs)
     theta = np.asarray(theta, dtype=float)

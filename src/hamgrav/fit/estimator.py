@@ -492,7 +492,7 @@ class GravityEstimator:
             arcs,
             estimate_trajectory_params=self.estimate_trajectory_params,
             trajectory_values=self.trajectory_values,
-            sigmas=noise_sigmas(arcs) if self.weighted else None,
+            whitening=np.diag(1.0 / noise_sigmas(arcs)) if self.weighted else None,
             regulariser=self.harmonic_penalty(model, arcs),
         )
 
