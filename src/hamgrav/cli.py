@@ -466,7 +466,13 @@ def fit(
     solver: Annotated[
         str | None, typer.Option(help="'adam' or 'lm' (default: adam for the network, lm for SH).")
     ] = None,
-    weighted: Annotated[bool, typer.Option(help="Divide residuals by the noise sigmas.")] = False,
+    weighted: Annotated[
+        bool,
+        typer.Option(
+            help="Whiten each sample's residual by the tracking noise: positions / sigma_r, "
+            "rotating-frame velocities / sigma_v."
+        ),
+    ] = False,
     kaula: Annotated[
         str | None,
         typer.Option(help="Kaula weight ALPHA, or 'scan' (1e-8..1e-4, best 1.05 R_B field error)."),

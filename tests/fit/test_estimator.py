@@ -1,5 +1,7 @@
 """The estimator: the one fit path (noise weighting, shape prior, Kaula scan, known part)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -7,32 +9,69 @@ from hamgrav.core.model import Model
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
 from hamgrav.errors import InputError
-from hamgrav.fit.estimator import GravityEstimator, noise_sigmas, validation_split
+from hamgrav.fit.covariance import sample_covariance
+from hamgrav.fit.estimator import (
+    GravityEstimator,
+    noise_sigmas,
+    noise_whitening,
+    validation_split,
+)
 from hamgrav.fit.lm import LevenbergMarquardt
+from hamgrav.sim.tracking import observe
 
 
-def test_noise_sigmas_are_the_arcs_noise(small_arcs):
-    """Residuals of the noisy samples against the truth, divided by the sigmas, have unit
-    spread (positions and p_z, whose noise is the velocity noise alone)."""
+def test_noise_whitening_whitens_the_sample_covariance(small_arcs):
+    """W S W^T = I for the (q, p) sample covariance, and W is the inverse of its Cholesky
+    factor (lower triangular)."""
     sigmas = noise_sigmas(small_arcs)
-    units = small_arcs.gm_m3_s2, small_arcs.spin_period_s
-    assert sigmas[0] > 0 and sigmas[3] > 0, units
-    scaled = (small_arcs.states - small_arcs.true_states)[:, 1:] / sigmas
-    rms = np.sqrt(np.mean(scaled.reshape(-1, 6) ** 2, axis=0))
-    assert rms[[0, 1, 2, 5]] == pytest.approx(np.ones(4), rel=0.1)
+    assert sigmas[0] > 0 and sigmas[3] > 0
+    s = sample_covariance(sigmas[0], sigmas[3])
+    w = noise_whitening(small_arcs)
+    np.testing.assert_allclose(w @ s @ w.T, np.eye(6), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(w, np.linalg.inv(np.linalg.cholesky(s)), rtol=1e-12, atol=0)
+    # the momenta carry the position noise: omega sigma_r = 10 sigma_v at the default ratio
+    assert np.sqrt(s[3, 3]) == pytest.approx(np.hypot(sigmas[0], sigmas[3]), rel=1e-12)
 
 
-def test_weighted_fit_divides_by_the_sigmas(small_arcs, synthetic_truth):
+def test_whitened_noise_of_the_true_states_is_white(small_arcs):
+    """Observations of the exact states drawn with the simulator's noise model: the whitened
+    residuals against the true states have the identity as covariance. n = 50 draws x 9 arcs
+    x 40 samples = 18000 per component: the sample variance's standard error is sqrt(2 / n)
+    = 0.011, a covariance's 1 / sqrt(n) = 0.007; the tolerance is 5 x 0.011."""
+    sigmas = noise_sigmas(small_arcs)
+    true = np.broadcast_to(small_arcs.true_states, (50, *small_arcs.true_states.shape))
+    noisy = observe(true, sigmas[0], sigmas[3], np.random.default_rng(11))
+    r = (noisy - true).reshape(-1, 6)
+    n = len(r)
+    assert n == 18000
+    white = r @ noise_whitening(small_arcs).T
+    cov = white.T @ white / n  # the noise has mean zero
+    # (dividing (q, p) by noise_sigmas instead gives p_x, p_y a variance of about 101 and a
+    # covariance of about 10 with y, x)
+    np.testing.assert_allclose(np.diag(cov), np.ones(6), rtol=0, atol=5 * np.sqrt(2 / n))
+    np.testing.assert_allclose(cov, np.eye(6), rtol=0, atol=5 * np.sqrt(2 / n))
+
+
+def test_whitening_needs_positive_noise(small_arcs):
+    with pytest.raises(InputError, match="positive noise levels"):
+        noise_whitening(replace(small_arcs, sigma_v_m_s=0.0))
+
+
+def test_weighted_fit_whitens_the_residuals(small_arcs, synthetic_truth):
     weighted = GravityEstimator("sh", degree=2, weighted=True, body=synthetic_truth.body)
     weighted.fit(small_arcs)
-    whitening = np.diag(1.0 / noise_sigmas(small_arcs))
-    problem = ArcProblem(weighted.model_, small_arcs, whitening=whitening)
+    problem = ArcProblem(weighted.model_, small_arcs, whitening=noise_whitening(small_arcs))
     assert weighted.result_.initial_cost == pytest.approx(problem.cost(np.zeros(5)), rel=1e-12)
+    assert weighted.result_.cost == pytest.approx(problem.cost(weighted.params_), rel=1e-12)
+    whitened = problem.residuals(weighted.params_)
+    raw = ArcProblem(weighted.model_, small_arcs).residuals(weighted.params_)
+    np.testing.assert_allclose(whitened, raw @ noise_whitening(small_arcs).T, rtol=1e-12)
     assert weighted.fitted_.solver["weighted"] is True
     plain = GravityEstimator("sh", degree=2, body=synthetic_truth.body).fit(small_arcs)
     assert plain.result_.initial_cost == pytest.approx(
         ArcProblem(plain.model_, small_arcs).cost(np.zeros(5)), rel=1e-12
     )
+    assert plain.fitted_.solver["weighted"] is False
 
 
 def test_shape_prior_is_centred_on_its_own_centre_of_mass(small_arcs, synthetic_truth):

@@ -1,7 +1,8 @@
 """Solver comparison: the paper's choices next to ours, on one campaign, same sensitivities.
 
 - Network: Adam (the paper) vs Levenberg-Marquardt, each on the unweighted canonical cost (the
-  paper) and on the noise-weighted cost; same hold-out, same initialisation.
+  paper) and on the noise-weighted cost (each sample's residual whitened by the tracking noise,
+  :func:`hamgrav.fit.estimator.noise_whitening`); same hold-out, same initialisation.
 - SH degree 4 and 8 by Levenberg-Marquardt (reference rows).
 - Continual learning: the campaign in stages; each stage warm-started vs from scratch.
 - D-optimal selection: greedy picks from the campaign's orbits (predicted sensitivities at the

@@ -27,7 +27,7 @@ from ..core.model import Model, evaluate_field
 from ..core.problem import ArcProblem
 from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics, Term
 from ..errors import HamgravWarning, InputError
-from ..units import CanonicalUnits
+from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
 from .base import Outcome, Solver, SolveResult
 from .diagnostics import constrained_parameters, diagnose
@@ -43,6 +43,7 @@ __all__ = [
     "body_in_frame",
     "fitted_harmonic_penalty",
     "noise_sigmas",
+    "noise_whitening",
     "PRESETS",
     "preset",
     "truth_shell_metric",
@@ -116,13 +117,37 @@ def body_for_arcs(arcs: Arcs, folder=None) -> Body:
 
 
 def noise_sigmas(arcs: Arcs) -> np.ndarray:
-    """Per-component noise (6,) of canonical (q, p) samples: sigma_r for positions and
-    sigma_v for momenta, in canonical units (the position noise's contribution to p through
-    omega x q is of the same order as sigma_v and is neglected here)."""
+    """The arcs' noise levels (6,) in canonical units: sigma_r for each position component
+    and sigma_v for each *rotating-frame velocity* component. Not the noise of the canonical
+    momenta: p = v + omega x q carries the position noise too (omega sigma_r, about ten times
+    sigma_v in the simulated tracking, and correlated with the position noise). The (6, 6)
+    covariance of a sample's (q, p) noise is
+    :func:`hamgrav.fit.covariance.sample_covariance` (sigmas[0], sigmas[3]); its whitening is
+    :func:`noise_whitening`."""
     units = CanonicalUnits(arcs.gm_m3_s2, arcs.spin_period_s)
     sr = float(units.to_length(arcs.sigma_r_m))
     sv = float(units.to_velocity(arcs.sigma_v_m_s))
     return np.array([sr, sr, sr, sv, sv, sv])
+
+
+def noise_whitening(arcs: Arcs) -> np.ndarray:
+    """The whitening W (6, 6) of one canonical (q, p) sample's noise: W r is the sample's
+    residual in position and rotating-frame velocity, (q, v = p - omega x q), divided by
+    (sigma_r, sigma_r, sigma_r, sigma_v, sigma_v, sigma_v) (:func:`noise_sigmas`). So
+    W S W^T = I for the sample covariance S (:func:`hamgrav.fit.covariance.sample_covariance`)
+    and W^T W = S^-1: W = L^-1 for the Cholesky factor S = L L^T (W is lower triangular).
+    Units: rows 0-2 per canonical length, rows 3-5 per canonical velocity (W r is
+    dimensionless). The weighted fit's residuals are W r sample by sample; raises
+    :class:`InputError` unless both noise levels are positive."""
+    sigmas = noise_sigmas(arcs)
+    if not np.all(sigmas > 0):
+        raise InputError(
+            f"whitening by the noise needs positive noise levels, got sigma_r "
+            f"{arcs.sigma_r_m!r} m and sigma_v {arcs.sigma_v_m_s!r} m/s"
+        )
+    states = np.eye(6)  # row k: the state e_k; its (q, v) is column k of the map (q, p) -> (q, v)
+    qv = np.concatenate([states[:, :3], momentum_to_velocity(states[:, :3], states[:, 3:])], 1)
+    return qv.T / sigmas[:, None]
 
 
 def fitted_harmonic_penalty(fitted: FittedModel, arcs: Arcs, body: Body):
@@ -192,7 +217,10 @@ class GravityEstimator:
             the network, LM for SH).
         warm_solver: the solver of warm-started fits (``init`` given), e.g. a shorter budget;
             None: the same as ``solver``.
-        weighted: divide residual components by their noise sigmas (:func:`noise_sigmas`).
+        weighted: whiten each sample's residual by the tracking noise (:func:`noise_whitening`:
+            position residuals divided by sigma_r, rotating-frame velocity residuals by
+            sigma_v), so that the cost is half the samples' chi-square (each sample's own
+            noise; the anchor's noise, carried along the arc, is not whitened).
         kaula: None, a Kaula weight alpha, or "scan": every alpha of the scan fitted to the
             training arcs, the best by ``kaula_metric`` or, without one, by the cost on the
             validation arcs (what a mission can do without the truth).
@@ -492,7 +520,7 @@ class GravityEstimator:
             arcs,
             estimate_trajectory_params=self.estimate_trajectory_params,
             trajectory_values=self.trajectory_values,
-            whitening=np.diag(1.0 / noise_sigmas(arcs)) if self.weighted else None,
+            whitening=noise_whitening(arcs) if self.weighted else None,
             regulariser=self.harmonic_penalty(model, arcs),
         )
 
