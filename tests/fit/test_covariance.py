@@ -20,12 +20,18 @@ from hamgrav.errors import InputError
 from hamgrav.fit.covariance import (
     calibration,
     formal_covariance,
+    normal_system,
     parameter_covariance,
     sample_covariance,
     training_arcs,
     uncertainty_report,
 )
-from hamgrav.fit.estimator import GravityEstimator, fitted_harmonic_penalty, noise_sigmas
+from hamgrav.fit.estimator import (
+    GravityEstimator,
+    fitted_harmonic_penalty,
+    noise_sigmas,
+    noise_whitening,
+)
 from hamgrav.fit.fitted import FittedModel
 from hamgrav.fit.lm import LevenbergMarquardt
 from hamgrav.fit.residuals import residual_report
@@ -119,6 +125,62 @@ def test_sample_covariance_maps_position_noise_into_momenta():
     s = sample_covariance(2.0, 0.5)
     assert s[3, 3] == 0.25 + 4.0 and s[5, 5] == 0.25  # p_x = v_x - y; p_z = v_z
     assert s[1, 3] == -4.0 and s[0, 4] == 4.0
+
+
+@pytest.fixture(scope="module", params=[False, True], ids=["unweighted", "weighted"])
+def tiny_fit(request, small_arcs, synthetic_truth):
+    """An SH 2 fit to three arcs, unweighted or weighted (whitened), and its estimator."""
+    arcs = small_arcs.subset(np.array([0, 4, 8]))
+    est = GravityEstimator("sh", degree=2, weighted=request.param, body=synthetic_truth.body)
+    return arcs, est.fit(arcs)
+
+
+@pytest.mark.parametrize("anchors", [True, False])
+def test_covariance_agrees_with_brute_force(tiny_fit, anchors):
+    """The normal system against dense linear algebra over all N = 3 x 40 x 6 residuals: the
+    fit's weight W^2 = (I x W)^T (I x W) (the identity unweighted), S_e the residuals' noise
+    covariance built sample by sample (e_k = n_k - Phi_k n_0 with anchors, n_k without; the
+    anchor sample has no residual), G = M^-1 A^T W^2, C = G S_e G^T and
+    E[Q] = E[(e - A G e)^T W^2 (e - A G e)]. The data cost is what the fit minimised."""
+    arcs, est = tiny_fit
+    fitted, weighted = est.fitted_, est.weighted
+    sigmas = noise_sigmas(arcs)
+    w = noise_whitening(arcs) if weighted else np.eye(6)
+    n_arcs, m = arcs.n_arcs, arcs.samples_per_arc
+    r, a = ArcProblem(fitted.model, arcs).design(fitted.params)  # canonical r and A
+    phi = state_transition(
+        fitted.model, arcs.states[:, 0], arcs.times, np.tile(fitted.params[:, None], n_arcs)
+    )
+    b = np.zeros((len(r), len(r)))  # e = B n for the samples' noise n
+    for i in range(n_arcs):
+        for k in range(1, m):
+            row = slice((i * m + k) * 6, (i * m + k + 1) * 6)
+            b[row, row] = np.eye(6)
+            if anchors:
+                b[row, i * m * 6 : (i * m + 1) * 6] = -phi[i, k]
+    s_e = b @ np.kron(np.eye(n_arcs * m), sample_covariance(sigmas[0], sigmas[3])) @ b.T
+    big_w = np.kron(np.eye(n_arcs * m), w)
+    w2 = big_w.T @ big_w
+    normal = a.T @ w2 @ a
+    g = np.linalg.solve(normal, a.T @ w2)
+    cov = g @ s_e @ g.T
+    resid = np.eye(len(r)) - a @ g
+    expected = np.trace(resid.T @ w2 @ resid @ s_e)
+
+    system = normal_system(fitted, arcs, anchors=anchors)
+    np.testing.assert_allclose(system.data_normal[0], normal, rtol=1e-10)
+    # the normal matrix the fit itself used at its solution (weighted: the whitened A)
+    fit_normal = est._problem(fitted.model, arcs).normal_equations(fitted.params)[2]
+    np.testing.assert_allclose(system.data_normal[0], fit_normal, rtol=1e-10)
+    assert system.cost[0] == pytest.approx(float(r @ w2 @ r), rel=1e-10)
+    assert system.cost[0] == pytest.approx(2 * est.result_.cost, rel=1e-10)
+    assert system.noise_trace[0] == pytest.approx(np.trace(w2 @ s_e), rel=1e-10)
+    result = system.covariance()
+    assert result.ranks == (5,)
+    np.testing.assert_allclose(result.matrix, cov, rtol=1e-8, atol=1e-8 * np.abs(cov).max())
+    assert result.expected_cost[0] == pytest.approx(expected, rel=1e-8)
+    if weighted and not anchors:  # white noise, whitened: the textbook N - rank
+        assert expected == pytest.approx(n_arcs * (m - 1) * 6 - 5, rel=1e-8)
 
 
 @pytest.fixture(scope="module")

@@ -1,18 +1,21 @@
 """Formal covariance of fitted learnable parameters from the arcs' noise.
 
 The fit solved min |r_f|^2 / 2 (+ alpha theta^T K theta / 2 with the Kaula weight), with r_f
-the residuals as the fit saw them: canonical (unweighted) or divided by the noise sigmas
-(weighted). Linearised at the fitted parameters, with A_f = d r_f / d theta and S the
-covariance of r_f (diag(sigma^2) unweighted, the identity weighted):
+the residuals as the fit saw them: canonical (unweighted) or whitened sample by sample,
+r_f = W r with W the noise whitening (weighted; :func:`hamgrav.fit.estimator.noise_whitening`,
+W S_s W^T = I for the sample covariance S_s). Write W^2 = W^T W (the identity unweighted,
+S_s^-1 weighted), so that |r_f|^2 = r^T W^2 r. Linearised at the fitted parameters, with
+A_f = d r_f / d theta and S the covariance of r_f:
 
     C = M^+ (A_f^T S A_f) M^+,   M = A_f^T A_f + alpha K,
 
-which is (A^T W A)^-1 for a weighted fit without Kaula when S is diagonal. Formal: the
-noise is white with the arcs' per-component sigmas on positions and rotating-frame
-velocities (:func:`sample_covariance` maps it to the canonical momenta, where the position
-noise dominates), and each arc starts at its first noisy
-sample, whose noise propagates along the arc (``anchors=True``; without it C is several
-times too small). Model error (e.g. the degrees an SH expansion leaves out) is not in C.
+which is (A^T W^2 A)^-1 for a weighted fit without Kaula when the samples' noise is white
+(S = I). Formal: the noise is white with the arcs' per-component sigmas on positions and
+rotating-frame velocities (:func:`sample_covariance` maps it to the canonical momenta, where
+the position noise dominates), and each arc starts at its first noisy sample, whose noise
+propagates along the arc (``anchors=True``; without it C is several times too small): S is
+then not the identity even for a weighted fit. Model error (e.g. the degrees an SH expansion
+leaves out) is not in C.
 
 M^+ is the pseudo-inverse over the directions the arcs constrain: the eigenvectors of M with
 eigenvalues above ``threshold`` (default :data:`RANK_THRESHOLD`) times the largest; their
@@ -30,7 +33,7 @@ members' mean) is the stacked vector of the members' parameters, each member fit
 own to the *same* arcs: member k's estimate moves by M_k^+ A_k^T W^2 n under the common
 noise n, so
 
-    C_kl = M_k^+ (A_k^T W S W A_l) M_l^+
+    C_kl = M_k^+ (A_k^T W^2 S_e W^2 A_l) M_l^+,   S_e the covariance of the noise n,
 
 including the cross blocks k != l: the members share the noise, so their errors are
 correlated and the mean's sigma does not shrink like 1 / sqrt(members) (the block-diagonal
@@ -45,11 +48,12 @@ with the fit linearised: for r = (I - A G) e, G = M^+ A^T W^2,
 
     E[Q] = tr(W^2 S_e) - 2 tr(M^+ A^T W^2 S_e W^2 A) + tr(A^T W^2 A C),
 
-which is N - rank for a weighted fit of white noise (the textbook r^T W r / (N - p)). The
+which is N - rank for a weighted fit of white noise (the textbook r^T S^-1 r / (N - p)). The
 anchors make S_e far from white and an unweighted fit far from efficient, so N - rank would
 be wrong: on a point-mass truth an unweighted fit of a small network (2 hidden units, the
-tests' 12 arcs; measured once) has C some 600 times the weighted (Gauss-Markov) covariance
-and the whitened chi^2 per degree of freedom 2.3 with the right model.
+tests' 12 arcs; measured once, with the diagonal weighting used before whitening) has C
+some 600 times the weighted (Gauss-Markov) covariance and the whitened chi^2 per degree of
+freedom 2.3 with the right model.
 :meth:`ParameterCovariance.scaled` multiplies member k's block by s_k, the (k, l) block by
 s_k s_l. A factor above 1 says the model does not explain the arcs down to the noise (model
 error, or a noise larger than stated); scaling by it inflates C accordingly, but only along
@@ -76,7 +80,7 @@ from ..core.terms import NeuralPotential, SphericalHarmonics
 from ..core.uncertainty import potential_sigma
 from ..errors import InputError, PropagationError
 from ..units import CanonicalUnits
-from .estimator import noise_sigmas, validation_split
+from .estimator import noise_sigmas, noise_whitening, validation_split
 from .fitted import FittedModel
 from .lm import kaula_diagonal
 
@@ -289,11 +293,15 @@ def normal_system(
     idx_all = np.arange(arcs.n_arcs) if train is None else np.asarray(train, dtype=int)
     n_b, n_m = member_model.n_learn, len(blocks)
     sigmas = noise_sigmas(arcs)
-    weighted = bool(fitted.solver.get("weighted", False))
-    w2 = 1.0 / sigmas**2 if weighted else np.ones(6)  # W^2: the fit's weights, squared
+    # the fit's whitening W of each sample's residual (the identity unweighted) and
+    # W^2 = W^T W, the weight of the fit's cost r^T W^2 r
+    w = noise_whitening(arcs) if fitted.solver.get("weighted", False) else np.eye(6)
+    w2 = w.T @ w
     sample_cov = sample_covariance(sigmas[0], sigmas[3])
     root = np.linalg.cholesky(sample_cov)  # S = L L^T: H^T S H = (L^T H)^T (L^T H) by BLAS
     problem = ArcProblem(member_model, arcs)  # unweighted residuals: A = d r / d theta
+    # tr(W^2 S) of one sample's white noise (6 weighted)
+    white_trace = float(np.sum(np.diag(w @ sample_cov @ w.T)))
     normal = [np.zeros((n_b, n_b)) for _ in blocks]
     middle = np.zeros((n_m * n_b, n_m * n_b))
     cost, trace = np.zeros(n_m), np.zeros(n_m)
@@ -304,22 +312,30 @@ def normal_system(
         for k, theta in enumerate(blocks):
             r, a = problem.design(theta, idx)
             r = r.reshape(len(idx), m, 6)
-            cost[k] += float(np.sum(w2 * r**2))
+            wr = r @ w.T  # the residuals as the fit saw them, W r
+            cost[k] += float(np.sum(wr**2))
             a = a.reshape(len(idx), m, 6, n_b)
-            h = a * w2[None, None, :, None]  # W A_f = W^2 A
+            h = np.matmul(w2, a)  # W^T A_f = W^2 A, sample by sample
             normal[k] += a.reshape(-1, n_b).T @ h.reshape(-1, n_b)  # A^T W^2 A
             # tr(W^2 S_e) over the samples after the anchor: white noise plus the anchor's
-            trace[k] += len(idx) * (m - 1) * float(np.sum(w2 * np.diag(sample_cov)))
+            trace[k] += len(idx) * (m - 1) * white_trace
             if anchors:
-                phi = state_transition(
+                transition = state_transition(
                     member_model,
                     arcs.states[idx, 0],
                     arcs.times[idx],
                     np.tile(theta[:, None], len(idx)),
-                )[:, 1:]
+                )
+                phi = transition[:, 1:]
                 if not np.all(np.isfinite(phi)):
                     raise PropagationError("an arc's state transition did not propagate")
-                trace[k] += float(np.einsum("i,akij,jl,akil->", w2, phi, sample_cov, phi))
+                # tr(W^2 Phi S Phi^T) = the diagonal of (W Phi) S (W Phi)^T, summed (W Phi
+                # laid out as Phi is: einsum's order of summation, so the unweighted sum's
+                # rounding, depends on the operands' strides)
+                w_phi = np.matmul(w, transition)[:, 1:]
+                trace[k] += float(
+                    np.einsum("i,akij,jl,akil->", np.ones(6), w_phi, sample_cov, w_phi)
+                )
                 h[:, 0] = -np.einsum("akij,akin->ajn", phi, h[:, 1:])
             stacked.append(np.einsum("ji,akjn->akin", root, h).reshape(-1, n_b))
         lt_h = np.concatenate(stacked, axis=1)
