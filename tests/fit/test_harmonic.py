@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -115,3 +117,38 @@ def test_the_penalty_refuses_what_it_cannot_do(small_arcs, synthetic_truth):
         HarmonicPenalty(Model((PointMass(),), SphericalHarmonics(2, 0.7)), np.ones((3, 3)), 1.0)
     with pytest.raises(InputError, match="weight must be positive"):
         HarmonicPenalty(NET, np.ones((3, 3)), -1.0)
+
+
+def test_lm_returns_the_arcs_own_normal_matrix_of_its_iterate(small_arcs, synthetic):
+    # the fit diagnostics count constrained directions from this matrix instead of
+    # recomputing it: it must be the arcs' A^T A (no penalty) at the returned parameters,
+    # which with validation arcs is the best-validation iterate, not the last one
+    penalty = HarmonicPenalty(NET, exterior_points(synthetic, 2.0, 50), weight=1e-3)
+    problem = ArcProblem(NET, small_arcs, regulariser=penalty)
+    solver = LevenbergMarquardt(max_iter=6, lambda0=1e-3, damping_floor=1e-8)
+    start = NET.learnable.initial_params(5)
+    train, validation = np.arange(1, small_arcs.n_arcs), np.array([0])
+    result = solver.solve(problem, start, train=train, validation=validation)
+    assert result.iterations > result.best_iteration or result.best_iteration > 0
+    own = ArcProblem(NET, small_arcs).normal_equations(result.params, train)[2]
+    assert np.allclose(result.data_normal, own, rtol=1e-12, atol=0.0)
+    penalised = problem.normal_equations(result.params, train)[2]
+    assert not np.allclose(result.data_normal, penalised, rtol=1e-6, atol=0.0)
+
+
+def test_fit_diagnostics_rank_matches_a_fresh_computation(small_arcs, synthetic_truth):
+    from hamgrav.fit.diagnostics import constrained_parameters
+
+    est = GravityEstimator(
+        "network",
+        hidden=(4, 4),
+        solver=LevenbergMarquardt(max_iter=4, lambda0=1e-2, damping_floor=1e-8),
+        harmonic=1e-3,
+        members=2,
+        body=synthetic_truth.body,
+    ).fit(small_arcs)
+    member = ArcProblem(replace(est.model_, learnable=est.model_.learnable.member()), small_arcs)
+    blocks = est.model_.learnable.split_members(est.params_)
+    fresh = [constrained_parameters(member, b, est.train_) for b in blocks]
+    assert est.diagnostics_["constrained_parameters_per_member"] == fresh
+    assert 0 < min(fresh) < member.n_params  # not vacuous: a rank between 0 and all

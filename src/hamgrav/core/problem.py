@@ -233,12 +233,23 @@ class ArcProblem:
             cost += 0.5 * float(r @ r)
             atr += a.T @ r
             ata += a.T @ a
-        if regularised and self.regulariser is not None:
-            k = self.model.n_learn
-            rows, jac = self.regulariser.terms(np.asarray(theta, float)[:k])
-            cost += 0.5 * float(rows @ rows)
-            atr[:k] += jac.T @ rows
-            ata[:k, :k] += jac.T @ jac
+        if regularised:
+            return self.regularise(theta, cost, atr, ata)
+        return cost, atr, ata
+
+    def regularise(self, theta, cost: float, atr: np.ndarray, ata: np.ndarray):
+        """The objective's (J, A^T r, A^T A) from the arcs' own (``normal_equations(...,
+        regularised=False)``): the regulariser's rows appended; new arrays, the given ones
+        are left as they are (the arcs' A^T A is what the fit diagnostics need). Without a
+        regulariser the same arrays are returned."""
+        if self.regulariser is None:
+            return cost, atr, ata
+        k = self.model.n_learn
+        rows, jac = self.regulariser.terms(np.asarray(theta, float)[:k])
+        atr, ata = atr.copy(), ata.copy()
+        cost += 0.5 * float(rows @ rows)
+        atr[:k] += jac.T @ rows
+        ata[:k, :k] += jac.T @ jac
         return cost, atr, ata
 
     def gradient(self, theta, arc_indices=None, chunk: int = 64):

@@ -47,6 +47,8 @@ class SolveResult:
         history: per-iteration records (lists of numbers keyed by name).
         wall_s: wall time [s].
         solver: the solver's settings (plain data).
+        data_normal: the arcs' own A^T A (no regulariser) at ``params`` when the solver
+            computed it there (LM), for the fit diagnostics; not saved anywhere.
     """
 
     params: np.ndarray
@@ -59,6 +61,7 @@ class SolveResult:
     history: dict = field(default_factory=dict)
     wall_s: float = 0.0
     solver: dict = field(default_factory=dict)
+    data_normal: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def converged(self) -> bool:

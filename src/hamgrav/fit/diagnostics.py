@@ -30,10 +30,12 @@ def diagnose(
     validation: np.ndarray | None,
     *,
     rank: bool = True,
+    normal: np.ndarray | None = None,
 ) -> dict:
     """Diagnostics of ``params`` against ``no_correction`` (see the module docstring);
     ``rank=False`` leaves out ``constrained_parameters`` (it needs A^T A of every parameter:
-    an ensemble reports it per member instead)."""
+    an ensemble reports it per member instead); ``normal``: the training arcs' A^T A at
+    ``params`` when the solver has it (else it is computed)."""
     held_out = validation is not None and len(validation) > 0
     arcs = validation if held_out else train
     fitted = problem.cost(params, arcs)
@@ -46,18 +48,27 @@ def diagnose(
         "n_params": int(problem.n_params),
     }
     if rank:
-        out["constrained_parameters"] = constrained_parameters(problem, params, train)
+        out["constrained_parameters"] = constrained_parameters(problem, params, train, normal)
     return out
 
 
 def constrained_parameters(
-    problem: ArcProblem, params: np.ndarray, train: np.ndarray | None
+    problem: ArcProblem,
+    params: np.ndarray,
+    train: np.ndarray | None,
+    normal: np.ndarray | None = None,
 ) -> int:
     """The numerical rank of A^T A on the ``train`` arcs at ``params`` (see the module
-    docstring); 0 without parameters."""
+    docstring); 0 without parameters. ``normal``: that A^T A when the caller has it (the LM
+    solver's at its returned iterate, :attr:`~hamgrav.fit.base.SolveResult.data_normal`),
+    else it is computed."""
     if not problem.n_params:
         return 0
-    _, _, ata = problem.normal_equations(params, train, regularised=False)
+    if normal is None:
+        _, _, normal = problem.normal_equations(params, train, regularised=False)
+    elif normal.shape != (problem.n_params, problem.n_params):
+        raise ValueError(f"normal matrix of shape {normal.shape} for {problem.n_params} parameters")
+    ata = normal
     eig = np.linalg.eigvalsh(ata)
     top = float(eig.max())
     return int(np.sum(eig > 1e-12 * top)) if top > 0 else 0

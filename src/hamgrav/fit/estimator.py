@@ -445,7 +445,13 @@ class GravityEstimator:
             no_correction = init.copy()
             no_correction[: model.n_learn] = 0.0
             self.diagnostics_ = diagnose(
-                problem, result.params, no_correction, train, validation, rank=not ensemble
+                problem,
+                result.params,
+                no_correction,
+                train,
+                validation,
+                rank=not ensemble,
+                normal=result.data_normal,
             )
             if ensemble:
                 ranks = [m.pop("constrained_parameters") for m in members]
@@ -586,7 +592,9 @@ class GravityEstimator:
                 "member": k,
                 "init_seed": self.seed + k,
                 **(r.summary() if r else {"message": "restored from the checkpoint"}),
-                "constrained_parameters": constrained_parameters(member_problem, block, train),
+                "constrained_parameters": constrained_parameters(
+                    member_problem, block, train, None if r is None else r.data_normal
+                ),
             }
             for k, (r, block) in enumerate(zip(results, blocks, strict=True))
         ]

@@ -76,18 +76,21 @@ class LevenbergMarquardt(Solver):
             return c + 0.5 * float(th @ (kaula * th))
 
         try:
-            cost, atr, ata = problem.normal_equations(theta, train)
+            # the arcs' own A^T A is kept beside the objective's: the fit diagnostics count the
+            # directions the arcs constrain at the returned iterate without recomputing it
+            cost, atr, data_ata = problem.normal_equations(theta, train, regularised=False)
         except PropagationError as exc:
             raise PropagationError(f"the initial parameters do not propagate: {exc}") from None
+        cost, atr, ata = problem.regularise(theta, cost, atr, data_ata)
         cost = reg_cost(cost, theta)
         initial_cost = cost
         lam = self.lambda0 if resume is None else float(resume["lambda"])
         history = {"cost": [cost], "lambda": [lam], "accepted": [True], "time_s": [0.0]}
-        best = (np.inf, theta.copy(), 0)
+        best = (np.inf, theta.copy(), 0, data_ata)
         has_val = validation is not None
         if has_val:
             history["validation"] = [problem.cost(theta, validation)]
-            best = (history["validation"][0], theta.copy(), 0)
+            best = (history["validation"][0], theta.copy(), 0, data_ata)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
         stale = 0  # accepted steps since the best validation cost
         for it in range(1, self.max_iter + 1):
@@ -101,13 +104,18 @@ class LevenbergMarquardt(Solver):
                 trial_cost = reg_cost(problem.objective(trial, train), trial)
                 accepted = trial_cost < cost
                 if accepted:
-                    _, trial_atr, trial_ata = problem.normal_equations(trial, train)
+                    c, trial_atr, trial_data_ata = problem.normal_equations(
+                        trial, train, regularised=False
+                    )
+                    _, trial_atr, trial_ata = problem.regularise(
+                        trial, c, trial_atr, trial_data_ata
+                    )
             except PropagationError:
                 trial_cost, accepted = math.inf, False
             if accepted:
                 n_accepted += 1
                 rel = (cost - trial_cost) / max(cost, 1e-300)
-                theta, cost = trial, trial_cost
+                theta, cost, data_ata = trial, trial_cost, trial_data_ata
                 lam = max(lam / self.lambda_down, self.lambda_floor)
             else:
                 lam *= self.lambda_up
@@ -119,7 +127,7 @@ class LevenbergMarquardt(Solver):
                 val = problem.cost(theta, validation) if accepted else history["validation"][-1]
                 history["validation"].append(val)
                 if val < best[0]:
-                    best, stale = (val, theta.copy(), it), 0
+                    best, stale = (val, theta.copy(), it, data_ata), 0
                 elif accepted:
                     stale += 1
             if callback is not None:
@@ -142,7 +150,17 @@ class LevenbergMarquardt(Solver):
                     checkpoint(theta, {"solver": self.name, "iteration": it, "lambda": lam})
         best_it = best[2] if has_val else it
         if has_val:
-            theta = best[1]
+            theta, data_ata = best[1], best[3]
         if n_accepted == 0 or (has_val and best_it == 0):
             outcome, message = Outcome.NO_IMPROVEMENT, f"no improvement ({message})"
-        return SolveResult(theta, cost, initial_cost, it, best_it, outcome, message, history)
+        return SolveResult(
+            theta,
+            cost,
+            initial_cost,
+            it,
+            best_it,
+            outcome,
+            message,
+            history,
+            data_normal=data_ata,
+        )
