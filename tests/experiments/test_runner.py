@@ -41,12 +41,21 @@ def test_config_from_toml_and_options(tmp_path):
         ({"interior": "solid"}, "interior must be one of"),
         ({"radius_rb": [1.2]}, "radius_rb must be a range of two numbers"),
         ({"orbits": True}, "orbits must be an integer"),
+        ({"lm_iterations": 0}, "lm_iterations must be at least 1, got 0"),
+        ({"harmonic": -1e-5}, "harmonic must be >= 0"),
     ],
 )
 def test_bad_config_is_named(data, message):
     with pytest.raises(InputError) as info:
         DescentExperimentConfig.from_dict(data, source="my.toml")
     assert message in str(info.value) and "my.toml" in str(info.value)
+
+
+def test_continual_warm_iterations_checked():
+    from hamgrav.experiments.continual import ContinualExperimentConfig
+
+    with pytest.raises(InputError, match="warm_iterations must be at least 1, got 0"):
+        ContinualExperimentConfig.from_dict({"warm_iterations": 0}, source="c.toml")
 
 
 def test_aggregate_median_min_max():
