@@ -59,7 +59,8 @@ class ContinualExperiment(Experiment):
     default_output = "results/continual-itokawa"
     figure_captions = {
         "continual.png": "field error at 1.2 R_B against the arcs received so far, for fits "
-        "warm-started from the previous stage and fits from scratch",
+        "warm-started from the previous stage and fits from scratch (median over the "
+        "repetitions; shaded: min-max of the warm fits)",
     }
 
     def run(self, config: ContinualExperimentConfig, ctx: RunContext) -> RunOutput:

@@ -62,24 +62,34 @@ def continual_readme(report: dict) -> list[str]:
 
 
 def continual_figure(report: dict) -> Figure:
-    """r1.2 against arcs received, warm and scratch, per model (first repetition)."""
-    first = report["repetitions"][0]
+    """r1.2 against arcs received, warm and scratch, per model: the median over the
+    repetitions, with the min-max band of the warm fits when there are several."""
+    reps = report["repetitions"]
     fig = Figure(figsize=(6.5, 4.2))
     ax = fig.add_subplot()
-    n = [s["n_arcs"] for s in first["stages"]]
-    for i, name in enumerate(first["summary"]):
+    n = [s["n_arcs"] for s in reps[0]["stages"]]
+    for i, name in enumerate(reps[0]["summary"]):
         for mode, style in (("warm", "-o"), ("scratch", "--s")):
+            values = np.array([[s[mode][name]["r1.2"] for s in rep["stages"]] for rep in reps])
             ax.plot(
                 n,
-                [s[mode][name]["r1.2"] for s in first["stages"]],
+                np.median(values, axis=0),
                 style,
                 color=f"C{i}",
                 label=f"{name}, {mode}",
             )
+            if mode == "warm" and len(reps) > 1:
+                ax.fill_between(
+                    n, values.min(axis=0), values.max(axis=0), color=f"C{i}", alpha=0.15, lw=0
+                )
     ax.set_yscale("log")
     ax.set_xlabel("arcs received")
     ax.set_ylabel("relative field error at 1.2 R_B")
     ax.set_xticks(np.asarray(n))
+    if len(reps) > 1:
+        ax.set_title(
+            f"median over {len(reps)} repetitions (band: min-max of the warm fits)", fontsize=9
+        )
     ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
