@@ -110,6 +110,36 @@ def test_normal_equations_agree_with_design(arcs):
     assert problem.gradient(theta)[1] == pytest.approx(atr, rel=1e-12)
 
 
+def test_arc_normals_add_to_known_sums_of_the_same_arcs(arcs):
+    """Sums of some arcs at the same parameters are added to: the result equals the sums
+    formed from scratch, and only the other arcs are propagated. Sums at other parameters,
+    or of other data at the same indices, are not used."""
+    sh = SphericalHarmonics(3, 0.7)
+    model = Model((PointMass(),), sh)
+    problem = ArcProblem(model, arcs)
+    theta = np.full(sh.n_params, 1e-3)
+    full = problem.arc_normals(theta)
+    first = ArcProblem(model, arcs.subset([0, 1, 2])).arc_normals(theta)
+    propagated = []
+    design = problem.design
+    problem.design = lambda th, idx: propagated.extend(idx) or design(th, idx)
+    reused = problem.arc_normals(theta, known=first)
+    assert sorted(propagated) == [3, 4]
+    assert reused.cost == pytest.approx(full.cost, rel=1e-12)
+    assert np.allclose(reused.atr, full.atr, rtol=1e-12, atol=1e-20)
+    assert np.allclose(reused.ata, full.ata, rtol=1e-12, atol=1e-20)
+    assert reused.fingerprint == full.fingerprint
+    propagated.clear()
+    moved = ArcProblem(model, arcs.subset([0, 1, 2])).arc_normals(theta * 2)
+    assert np.allclose(problem.arc_normals(theta, known=moved).ata, full.ata, rtol=1e-12)
+    assert sorted(propagated) == [0, 1, 2, 3, 4]
+    propagated.clear()
+    other = arcs.subset([4, 3, 2])  # other data at indices 0-2
+    foreign = ArcProblem(model, other).arc_normals(theta)
+    assert np.allclose(problem.arc_normals(theta, known=foreign).ata, full.ata, rtol=1e-12)
+    assert sorted(propagated) == [0, 1, 2, 3, 4]
+
+
 def test_whitening_applies_to_every_sample(arcs):
     """With a whitening W, r_w = (I x W) r and A_w = (I x W) A (one W per sample), the cost
     is half the whitened residuals' sum of squares, and the normal equations are those of

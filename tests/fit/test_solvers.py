@@ -15,7 +15,7 @@ from hamgrav.core.terms import (
 )
 from hamgrav.errors import PropagationError
 from hamgrav.fit.adam import Adam
-from hamgrav.fit.continual import fit_continual
+from hamgrav.fit.continual import ContinualFit, fit_continual
 from hamgrav.fit.estimator import GravityEstimator
 from hamgrav.fit.estimator import validation_split as split_validation
 from hamgrav.fit.kaula import scan_kaula
@@ -104,6 +104,46 @@ def test_warm_start_converges_faster(sh_world, synthetic_truth):
     assert warm[1].result.iterations < cold[1].result.iterations
     assert warm[1].result.cost == pytest.approx(cold[1].result.cost, rel=1e-6)
     assert [s["stage"] for s in warm_fit.fitted_.stages] == [0, 1]
+
+
+def test_a_warm_stage_forms_normal_equations_of_the_new_arcs_only(small_arcs, synthetic_truth):
+    """A warm-started stage adds the new training arcs to the previous stage's normal
+    equations at its returned parameters, for each member of an ensemble; the sums it starts
+    from equal those formed from scratch."""
+    stages = [np.arange(0, 5), np.arange(5, 9)]
+    est = GravityEstimator(
+        "network",
+        hidden=(8,),
+        members=2,
+        validation_fraction=0.25,
+        solver=LevenbergMarquardt(max_iter=3),
+        body=synthetic_truth.body,
+    )
+    run = ContinualFit(est, small_arcs)
+    first = run.add(stages[0])
+    starts = []
+    arc_normals = ArcProblem.arc_normals
+
+    def spy(problem, theta, arc_indices=None, *, known=None, **kw):
+        normals = arc_normals(problem, theta, arc_indices, known=known, **kw)
+        if known is not None:
+            starts.append((problem, known, normals))
+        return normals
+
+    ArcProblem.arc_normals = spy
+    try:
+        second = run.add(stages[1])
+    finally:
+        ArcProblem.arc_normals = arc_normals
+    assert second.warm_started and len(starts) == 2
+    train = np.flatnonzero(~np.isin(second.arcs, second.validation))
+    for k, (problem, known, normals) in enumerate(starts):
+        assert known is first.result.members[k].normals
+        assert np.array_equal(known.params, normals.params)
+        assert set(known.arcs) < set(train) and np.array_equal(normals.arcs, train)
+        fresh = problem.normal_equations(normals.params, train, regularised=False)
+        assert normals.cost == pytest.approx(fresh[0], rel=1e-12)
+        assert np.allclose(normals.ata, fresh[2], rtol=1e-10, atol=1e-30)
 
 
 def test_adam_lowers_validation_loss(small_arcs):

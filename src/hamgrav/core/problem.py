@@ -14,8 +14,10 @@ A are whitened: r -> W r, A -> W A (the weighted fit, W from
 :func:`hamgrav.fit.estimator.noise_whitening`); everything above then holds for the whitened
 r and A.
 
-Solvers use an :class:`ArcProblem` only through ``cost``, ``objective``, ``gradient`` and
-``normal_equations``. An optional ``regulariser`` (residual rows on the learnable parameters,
+Solvers use an :class:`ArcProblem` only through ``cost``, ``objective``, ``gradient``,
+``normal_equations`` and ``arc_normals`` (the arcs' sums as an :class:`ArcNormals`, which a later
+problem holding the same arcs, e.g. the next stage of a continual fit, adds to instead of
+recomputing). An optional ``regulariser`` (residual rows on the learnable parameters,
 e.g. :class:`hamgrav.fit.harmonic.HarmonicPenalty`) is part of the training objective:
 ``objective`` and ``normal_equations`` include it, ``cost`` (validation, diagnostics) never
 does.
@@ -23,6 +25,8 @@ does.
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +36,7 @@ from .arcs import Arcs
 from .model import DEFAULT_FIT_TOLERANCE, Model
 from .propagation import propagate_batch
 
-__all__ = ["ArcProblem", "Prediction"]
+__all__ = ["ArcNormals", "ArcProblem", "Prediction"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +45,23 @@ class Prediction:
 
     states: np.ndarray
     jacobian: np.ndarray | None
+
+
+@dataclass(frozen=True, eq=False)
+class ArcNormals:
+    """The arcs' own least-squares sums (no regulariser) at ``params``: ``cost`` J = r.r / 2,
+    ``atr`` A^T r (n_params,) and ``ata`` A^T A (n_params, n_params), canonical, over the arcs
+    ``arcs`` (indices into the problem's arcs). ``fingerprint`` identifies those arcs' data,
+    the model and the whitening (:meth:`ArcProblem.fingerprint`): another problem whose arcs
+    at the same indices have the same fingerprint can add to these sums instead of
+    recomputing them."""
+
+    params: np.ndarray
+    arcs: np.ndarray
+    fingerprint: str
+    cost: float
+    atr: np.ndarray
+    ata: np.ndarray
 
 
 class ArcProblem:
@@ -108,6 +129,7 @@ class ArcProblem:
         self.whitening = whitening
         self.threads = threads
         self.max_steps = int(max_steps)
+        self._fingerprints: dict[bytes, str] = {}
 
     # ---------------------------------------------------------------- parameter mapping
     def trajectory_params(self, theta: np.ndarray) -> np.ndarray:
@@ -236,6 +258,48 @@ class ArcProblem:
         if regularised:
             return self.regularise(theta, cost, atr, ata)
         return cost, atr, ata
+
+    def fingerprint(self, arc_indices=None) -> str:
+        """SHA-256 (hex) of what the arcs' sums at given parameters depend on: the selected
+        arcs' data (:meth:`Arcs.digest`), the model's description, the whitening and the
+        parameter layout. Kept per selection: a fit asks for it once per training set."""
+        idx = self._indices(arc_indices)
+        key = idx.tobytes()
+        if key not in self._fingerprints:
+            h = hashlib.sha256(self.arcs.subset(idx).digest().encode())
+            h.update(json.dumps(self.model.describe(), sort_keys=True, default=repr).encode())
+            h.update(repr((self.n_params, self.estimate_trajectory_params)).encode())
+            for array in (self.whitening, self.trajectory_values):
+                h.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
+            self._fingerprints[key] = h.hexdigest()
+        return self._fingerprints[key]
+
+    def arc_normals(
+        self, theta, arc_indices=None, *, known: ArcNormals | None = None, chunk: int = 64
+    ) -> ArcNormals:
+        """The arcs' own (J, A^T r, A^T A) at ``theta`` over the selected arcs, as
+        :class:`ArcNormals`. ``known`` sums of some of these arcs at the same ``theta`` (same
+        fingerprint) are added to instead of recomputed; ``known`` sums that do not apply
+        (other parameters, arcs or data) are ignored."""
+        idx = self._indices(arc_indices)
+        theta = np.array(theta, dtype=float)
+        rest = idx
+        base = (0.0, np.zeros(self.n_params), np.zeros((self.n_params, self.n_params)))
+        if known is not None and self._applies(known, theta, idx):
+            rest = np.setdiff1d(idx, known.arcs)
+            base = (known.cost, known.atr, known.ata)
+        cost, atr, ata = self.normal_equations(theta, rest, chunk, regularised=False)
+        return ArcNormals(
+            theta, idx.copy(), self.fingerprint(idx), base[0] + cost, base[1] + atr, base[2] + ata
+        )
+
+    def _applies(self, known: ArcNormals, theta: np.ndarray, idx: np.ndarray) -> bool:
+        return (
+            known.params.shape == theta.shape
+            and np.array_equal(known.params, theta)
+            and np.all(np.isin(known.arcs, idx))
+            and known.fingerprint == self.fingerprint(known.arcs)
+        )
 
     def regularise(self, theta, cost: float, atr: np.ndarray, ata: np.ndarray):
         """The objective's (J, A^T r, A^T A) from the arcs' own (``normal_equations(...,

@@ -44,8 +44,9 @@ class Adam(Solver):
         return lo + 0.5 * (self.learning_rate - lo) * (1 + math.cos(math.pi * step / self.steps))
 
     def _iterate(
-        self, problem, theta, train, validation, callback, checkpoint, resume
+        self, problem, theta, train, validation, callback, checkpoint, resume, known
     ) -> SolveResult:
+        del known  # no normal equations to add to
         start = time.perf_counter()
         rng = np.random.default_rng(self.seed)
         train = np.arange(problem.arcs.n_arcs) if train is None else np.asarray(train)

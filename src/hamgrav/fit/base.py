@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from ..core.problem import ArcProblem
+from ..core.problem import ArcNormals, ArcProblem
 
 __all__ = ["Outcome", "SolveResult", "Solver"]
 
@@ -47,8 +47,10 @@ class SolveResult:
         history: per-iteration records (lists of numbers keyed by name).
         wall_s: wall time [s].
         solver: the solver's settings (plain data).
-        data_normal: the arcs' own A^T A (no regulariser) at ``params`` when the solver
-            computed it there (LM), for the fit diagnostics; not saved anywhere.
+        normals: the training arcs' own sums (no regulariser) at ``params`` when the solver
+            computed them there (LM): the fit diagnostics use their A^T A, and a warm-started
+            fit on more arcs adds to them (``known`` of :meth:`Solver.solve`); not saved.
+        members: the members' own results, for an ensemble fitted member by member.
     """
 
     params: np.ndarray
@@ -61,7 +63,13 @@ class SolveResult:
     history: dict = field(default_factory=dict)
     wall_s: float = 0.0
     solver: dict = field(default_factory=dict)
-    data_normal: np.ndarray | None = field(default=None, repr=False, compare=False)
+    normals: ArcNormals | None = field(default=None, repr=False, compare=False)
+    members: tuple[SolveResult | None, ...] = field(default=(), repr=False, compare=False)
+
+    @property
+    def data_normal(self) -> np.ndarray | None:
+        """The training arcs' own A^T A at ``params`` (None when the solver did not form it)."""
+        return None if self.normals is None else self.normals.ata
 
     @property
     def converged(self) -> bool:
@@ -99,6 +107,7 @@ class Solver(ABC):
         callback: Callable[[int, dict], None] | None = None,
         checkpoint: Callable[[np.ndarray, dict], None] | None = None,
         resume: dict | None = None,
+        known: ArcNormals | None = None,
     ) -> SolveResult:
         """Minimise the cost over the ``train`` arcs (all if None) from ``theta0`` (zeros if
         None).
@@ -106,18 +115,22 @@ class Solver(ABC):
         With ``validation`` arcs, the iterate with the lowest validation cost is returned.
         ``callback(iteration, record)`` reports progress; ``checkpoint(theta, state)`` is called
         with everything needed to continue, and passing that state back as ``resume`` (with
-        theta as ``theta0``) continues the run.
+        theta as ``theta0``) continues the run. ``known``: sums of some of the training arcs
+        at ``theta0`` (e.g. the previous stage's :attr:`SolveResult.normals`), which a solver
+        forming normal equations adds to instead of recomputing them.
         """
         start = time.perf_counter()
         theta = np.zeros(problem.n_params) if theta0 is None else np.array(theta0, dtype=float)
         if validation is not None and len(validation) == 0:
             validation = None
-        result = self._iterate(problem, theta, train, validation, callback, checkpoint, resume)
+        result = self._iterate(
+            problem, theta, train, validation, callback, checkpoint, resume, known
+        )
         return replace(result, wall_s=time.perf_counter() - start, solver=self.describe())
 
     @abstractmethod
     def _iterate(
-        self, problem, theta, train, validation, callback, checkpoint, resume
+        self, problem, theta, train, validation, callback, checkpoint, resume, known
     ) -> SolveResult:
         """The solver's iterations from ``theta`` (see :meth:`solve` for the arguments); the
         result's wall time and settings are filled in by :meth:`solve`."""

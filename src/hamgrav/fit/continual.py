@@ -86,8 +86,13 @@ class ContinualFit:
         local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
         theta = self.params
         warm = self.warm_start and theta is not None
+        # the previous stage's training arcs keep their indices (arcs are appended), so its
+        # normal equations at theta are added to rather than formed again
+        previous = self.records[-1].result if warm else None
         try:
-            estimator.fit(subset, init=theta if warm else None, validation=local_val)
+            estimator.fit(
+                subset, init=theta if warm else None, validation=local_val, reuse=previous
+            )
         except PropagationError:
             if not warm:
                 raise

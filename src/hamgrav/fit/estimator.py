@@ -375,10 +375,15 @@ class GravityEstimator:
         callback=None,
         checkpoint=None,
         resume: dict | None = None,
+        reuse: SolveResult | None = None,
     ) -> GravityEstimator:
         """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
         stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`),
-        ``solver`` replaces the estimator's solver (and ``warm_solver``) for this fit."""
+        ``solver`` replaces the estimator's solver (and ``warm_solver``) for this fit.
+        ``reuse``: the result that ended at ``init`` (e.g. the previous stage's
+        :attr:`result_`); the normal equations it formed of its training arcs are added to,
+        not recomputed, where those arcs are among this fit's training arcs at the same
+        indices with the same data (checked by fingerprint; otherwise they are recomputed)."""
         model, prior_info = self.build_model(arcs)
         problem = self._problem(model, arcs)
         ensemble = isinstance(model.learnable, NeuralPotential) and model.learnable.members > 1
@@ -429,7 +434,7 @@ class GravityEstimator:
             )
         elif ensemble:
             result, members = self._fit_members(
-                problem, init, solver, train, validation, callback, checkpoint, resume
+                problem, init, solver, train, validation, callback, checkpoint, resume, reuse
             )
         else:
             result = solver.solve(
@@ -440,6 +445,7 @@ class GravityEstimator:
                 callback=callback,
                 checkpoint=checkpoint,
                 resume=resume,
+                known=None if reuse is None else reuse.normals,
             )
         if problem.n_params:
             no_correction = init.copy()
@@ -544,11 +550,15 @@ class GravityEstimator:
         points = exterior_points(body, reach, DEFAULT_COLLOCATION_POINTS, seed=self.seed)
         return HarmonicPenalty(model, points, float(self.harmonic))
 
-    def _fit_members(self, problem, init, solver, train, validation, callback, checkpoint, resume):
+    def _fit_members(
+        self, problem, init, solver, train, validation, callback, checkpoint, resume, reuse
+    ):
         """Fit each member of the ensemble on its own, from its block of ``init``; returns the
         ensemble's result (iterations and wall time: totals over the members) and a summary
         per member. A checkpoint holds every member's current block and the member being
-        fitted; resuming skips the members before it (their blocks are kept as they are)."""
+        fitted; resuming skips the members before it (their blocks are kept as they are).
+        ``reuse``: an earlier ensemble result, whose members' normal equations each member
+        may add to (see :meth:`fit`)."""
         start = time.perf_counter()
         term = problem.model.learnable
         member_problem = self._problem(
@@ -575,6 +585,7 @@ class GravityEstimator:
                 callback=None if callback is None else report,
                 checkpoint=None if checkpoint is None else save,
                 resume=resume if k == first else None,
+                known=_member_normals(reuse, k),
             )
             blocks[k] = results[k].params
         params = np.concatenate(blocks)
@@ -616,6 +627,7 @@ class GravityEstimator:
             history=history,
             wall_s=time.perf_counter() - start,
             solver=solver.describe(),
+            members=tuple(results),
         )
         return result, summaries
 
@@ -640,6 +652,13 @@ def _warn_if_underdetermined(problem: ArcProblem, ensemble: bool, arcs: Arcs, tr
             HamgravWarning,
             stacklevel=3,
         )
+
+
+def _member_normals(reuse: SolveResult | None, k: int):
+    """Member ``k``'s normal equations in an earlier ensemble result (None if it has none)."""
+    if reuse is None or k >= len(reuse.members) or reuse.members[k] is None:
+        return None
+    return reuse.members[k].normals
 
 
 def _nothing_to_fit(problem: ArcProblem) -> SolveResult:

@@ -67,7 +67,7 @@ class LevenbergMarquardt(Solver):
     name = "levenberg-marquardt"
 
     def _iterate(
-        self, problem, theta, train, validation, callback, checkpoint, resume
+        self, problem, theta, train, validation, callback, checkpoint, resume, known
     ) -> SolveResult:
         start = time.perf_counter()
         kaula = self.kaula_alpha * kaula_diagonal(problem)
@@ -76,21 +76,22 @@ class LevenbergMarquardt(Solver):
             return c + 0.5 * float(th @ (kaula * th))
 
         try:
-            # the arcs' own A^T A is kept beside the objective's: the fit diagnostics count the
-            # directions the arcs constrain at the returned iterate without recomputing it
-            cost, atr, data_ata = problem.normal_equations(theta, train, regularised=False)
+            # the arcs' own sums are kept beside the objective's: the fit diagnostics count the
+            # directions the arcs constrain at the returned iterate without recomputing them,
+            # and a warm start on more arcs adds to them
+            normals = problem.arc_normals(theta, train, known=known)
         except PropagationError as exc:
             raise PropagationError(f"the initial parameters do not propagate: {exc}") from None
-        cost, atr, ata = problem.regularise(theta, cost, atr, data_ata)
+        cost, atr, ata = problem.regularise(theta, normals.cost, normals.atr, normals.ata)
         cost = reg_cost(cost, theta)
         initial_cost = cost
         lam = self.lambda0 if resume is None else float(resume["lambda"])
         history = {"cost": [cost], "lambda": [lam], "accepted": [True], "time_s": [0.0]}
-        best = (np.inf, theta.copy(), 0, data_ata)
+        best = (np.inf, theta.copy(), 0, normals)
         has_val = validation is not None
         if has_val:
             history["validation"] = [problem.cost(theta, validation)]
-            best = (history["validation"][0], theta.copy(), 0, data_ata)
+            best = (history["validation"][0], theta.copy(), 0, normals)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
         stale = 0  # accepted steps since the best validation cost
         for it in range(1, self.max_iter + 1):
@@ -104,18 +105,16 @@ class LevenbergMarquardt(Solver):
                 trial_cost = reg_cost(problem.objective(trial, train), trial)
                 accepted = trial_cost < cost
                 if accepted:
-                    c, trial_atr, trial_data_ata = problem.normal_equations(
-                        trial, train, regularised=False
-                    )
+                    trial_normals = problem.arc_normals(trial, train)
                     _, trial_atr, trial_ata = problem.regularise(
-                        trial, c, trial_atr, trial_data_ata
+                        trial, trial_normals.cost, trial_normals.atr, trial_normals.ata
                     )
             except PropagationError:
                 trial_cost, accepted = math.inf, False
             if accepted:
                 n_accepted += 1
                 rel = (cost - trial_cost) / max(cost, 1e-300)
-                theta, cost, data_ata = trial, trial_cost, trial_data_ata
+                theta, cost, normals = trial, trial_cost, trial_normals
                 lam = max(lam / self.lambda_down, self.lambda_floor)
             else:
                 lam *= self.lambda_up
@@ -127,7 +126,7 @@ class LevenbergMarquardt(Solver):
                 val = problem.cost(theta, validation) if accepted else history["validation"][-1]
                 history["validation"].append(val)
                 if val < best[0]:
-                    best, stale = (val, theta.copy(), it, data_ata), 0
+                    best, stale = (val, theta.copy(), it, normals), 0
                 elif accepted:
                     stale += 1
             if callback is not None:
@@ -150,7 +149,7 @@ class LevenbergMarquardt(Solver):
                     checkpoint(theta, {"solver": self.name, "iteration": it, "lambda": lam})
         best_it = best[2] if has_val else it
         if has_val:
-            theta, data_ata = best[1], best[3]
+            theta, normals = best[1], best[3]
         if n_accepted == 0 or (has_val and best_it == 0):
             outcome, message = Outcome.NO_IMPROVEMENT, f"no improvement ({message})"
         return SolveResult(
@@ -162,5 +161,5 @@ class LevenbergMarquardt(Solver):
             outcome,
             message,
             history,
-            data_normal=data_ata,
+            normals=normals,
         )
