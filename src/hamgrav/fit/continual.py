@@ -4,6 +4,11 @@ At stage k the estimator is fitted to every arc received so far (stages 0..k), s
 the parameters of stage k-1 (or from scratch when ``warm_start`` is off). Validation arcs are
 chosen once: each stage's arriving arcs are split (seeded by the estimator's seed and the stage)
 and an arc held out once stays held out at every later stage, so no stage ever trains on it.
+
+A warm stage starts from the previous stage's normal equations (formed at its returned
+parameters, the new stage's start) plus the new training arcs'; with network-best's warm
+solver (``lag_known``) the previous arcs then keep that Gauss-Newton model through the stage,
+so each step propagates only the new arcs' sensitivities.
 """
 
 from __future__ import annotations
