@@ -15,7 +15,6 @@ from hamgrav.core.terms import (
 )
 from hamgrav.errors import PropagationError
 from hamgrav.fit.adam import Adam
-from hamgrav.fit.base import Outcome
 from hamgrav.fit.continual import ContinualFit, fit_continual
 from hamgrav.fit.estimator import GravityEstimator
 from hamgrav.fit.estimator import validation_split as split_validation
@@ -145,49 +144,6 @@ def test_a_warm_stage_forms_normal_equations_of_the_new_arcs_only(small_arcs, sy
         fresh = problem.normal_equations(normals.params, train, regularised=False)
         assert normals.cost == pytest.approx(fresh[0], rel=1e-12)
         assert np.allclose(normals.ata, fresh[2], rtol=1e-10, atol=1e-30)
-
-
-def _lagged_world(small_arcs):
-    """A network fitted to arcs 0-4 and the problem of all 9 arcs, whose design calls are
-    recorded (the arcs whose sensitivities each call propagates)."""
-    nn = NeuralPotential((8,))
-    model = Model((PointMass(),), nn)
-    first = LevenbergMarquardt(max_iter=3, lambda0=1e-2).solve(
-        ArcProblem(model, small_arcs.subset(np.arange(5))), nn.initial_params(0)
-    )
-    problem = ArcProblem(model, small_arcs)
-    calls = []
-    design = problem.design
-    problem.design = lambda th, idx: calls.append(sorted(idx)) or design(th, idx)
-    return first, problem, calls
-
-
-def test_lagged_known_arcs_are_not_propagated_again(small_arcs):
-    """With lag_known, the steps of a warm start on more arcs propagate the new arcs'
-    sensitivities only; the returned sums are formed exactly at the returned parameters."""
-    first, problem, calls = _lagged_world(small_arcs)
-    solver = LevenbergMarquardt(max_iter=4, lambda0=1e-2, lag_known=True)
-    result = solver.solve(problem, first.params, known=first.normals)
-    new, every = list(range(5, 9)), list(range(9))
-    assert result.best_iteration > 0 and len(calls) >= 3
-    assert all(c == new for c in calls[:-1]) and calls[-1] == every
-    cost, atr, ata = problem.normal_equations(result.params, regularised=False)
-    assert result.normals.exact and result.normals.cost == pytest.approx(cost, rel=1e-12)
-    assert np.allclose(result.normals.ata, ata, rtol=1e-12, atol=1e-30)
-    assert result.cost < result.initial_cost
-
-
-def test_lagged_fit_relinearises_when_the_damping_saturates(small_arcs):
-    """A saturated damping with lagged arcs relinearises every arc once and goes on; after
-    that every step propagates every arc."""
-    first, problem, calls = _lagged_world(small_arcs)
-    solver = LevenbergMarquardt(max_iter=5, lambda0=1e-2, lambda_ceiling=1e-3, lag_known=True)
-    result = solver.solve(problem, first.params, known=first.normals)
-    every = list(range(9))
-    assert calls[0] == list(range(5, 9))
-    relinearised = calls.index(every)
-    assert relinearised >= 1 and all(c == every for c in calls[relinearised:])
-    assert result.outcome is Outcome.DAMPING_SATURATED and result.iterations >= 2
 
 
 def test_adam_lowers_validation_loss(small_arcs):
