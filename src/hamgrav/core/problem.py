@@ -54,9 +54,7 @@ class ArcNormals:
     ``arcs`` (indices into the problem's arcs). ``fingerprint`` identifies those arcs' data,
     the model and the whitening (:meth:`ArcProblem.fingerprint`): another problem whose arcs
     at the same indices have the same fingerprint can add to these sums instead of
-    recomputing them. ``exact`` is False for sums in which some arcs keep a Gauss-Newton model
-    from other parameters (see :class:`hamgrav.fit.lm.LevenbergMarquardt`'s ``lag_known``);
-    those are never added to."""
+    recomputing them."""
 
     params: np.ndarray
     arcs: np.ndarray
@@ -64,7 +62,6 @@ class ArcNormals:
     cost: float
     atr: np.ndarray
     ata: np.ndarray
-    exact: bool = True
 
 
 class ArcProblem:
@@ -240,15 +237,12 @@ class ArcProblem:
         return r.reshape(-1), a.reshape(-1, self.n_params)
 
     def objective(self, theta, arc_indices=None) -> float:
-        """The training objective: :meth:`cost` plus :meth:`penalty`."""
-        return self.cost(theta, arc_indices) + self.penalty(theta)
-
-    def penalty(self, theta) -> float:
-        """The regulariser's part of the objective, 0.5 rows.rows (0 without one)."""
+        """The training objective: :meth:`cost` plus the regulariser's 0.5 rows.rows."""
+        cost = self.cost(theta, arc_indices)
         if self.regulariser is None:
-            return 0.0
+            return cost
         rows, _ = self.regulariser.terms(np.asarray(theta, float)[: self.model.n_learn])
-        return 0.5 * float(rows @ rows)
+        return cost + 0.5 * float(rows @ rows)
 
     def normal_equations(self, theta, arc_indices=None, chunk: int = 64, *, regularised=True):
         """(J, A^T r, A^T A), accumulated over chunks of arcs without materialising A; with
@@ -291,7 +285,7 @@ class ArcProblem:
         theta = np.array(theta, dtype=float)
         rest = idx
         base = (0.0, np.zeros(self.n_params), np.zeros((self.n_params, self.n_params)))
-        if known is not None and self.can_add_to(known, theta, idx):
+        if known is not None and self._applies(known, theta, idx):
             rest = np.setdiff1d(idx, known.arcs)
             base = (known.cost, known.atr, known.ata)
         cost, atr, ata = self.normal_equations(theta, rest, chunk, regularised=False)
@@ -299,15 +293,9 @@ class ArcProblem:
             theta, idx.copy(), self.fingerprint(idx), base[0] + cost, base[1] + atr, base[2] + ata
         )
 
-    def can_add_to(self, known: ArcNormals, theta, arc_indices=None) -> bool:
-        """Whether :meth:`arc_normals` at ``theta`` over the selected arcs adds to ``known``:
-        exact sums at the same parameters, of arcs among the selected ones, with this
-        problem's data and model at their indices (same fingerprint)."""
-        theta = np.asarray(theta, dtype=float)
-        idx = self._indices(arc_indices)
+    def _applies(self, known: ArcNormals, theta: np.ndarray, idx: np.ndarray) -> bool:
         return (
-            known.exact
-            and known.params.shape == theta.shape
+            known.params.shape == theta.shape
             and np.array_equal(known.params, theta)
             and np.all(np.isin(known.arcs, idx))
             and known.fingerprint == self.fingerprint(known.arcs)

@@ -77,9 +77,8 @@ NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=20, rtol=1e-9, lambda0=1e-2, d
 #: (deep-region error 1.13 -> 0.47, seed 0).
 NETWORK_BEST_HARMONIC = 1e-5
 #: Warm-started continual stages start near the optimum: at most 10 iterations per member,
-#: stopping after 3 accepted steps that do not lower the validation cost; the previous
-#: stage's arcs keep their Gauss-Newton model from the stage's start (``lag_known``).
-NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=3, lag_known=True)
+#: stopping after 3 accepted steps that do not lower the validation cost.
+NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=3)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).
 PRESETS: dict[str, dict] = {

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..core.problem import ArcNormals, ArcProblem
+from ..core.problem import ArcProblem
 from ..core.terms import SphericalHarmonics, sh_index
 from ..errors import PropagationError
 from .base import Outcome, Solver, SolveResult
@@ -51,14 +51,6 @@ class LevenbergMarquardt(Solver):
     saturated tanh units, diag ~ 1e-50) are damped too. With validation arcs and
     ``patience``, the fit stops after ``patience`` accepted steps in a row that do not lower
     the best validation cost (rejected trials leave the iterate unchanged and do not count).
-
-    ``lag_known``: given ``known`` sums of some training arcs at the initial parameters (a
-    warm start on more arcs, e.g. the next stage of a continual fit), those arcs keep their
-    Gauss-Newton model from the start, A^T A fixed and A^T r moved along it, instead of
-    being relinearised at every accepted step; only the other arcs' sensitivities are
-    propagated. Steps are still accepted on the exact cost of every training arc. If the
-    damping saturates, every arc is relinearised once and the fit goes on. The returned
-    ``normals`` are formed exactly at the returned parameters.
     """
 
     lambda0: float = 1e-6
@@ -71,7 +63,6 @@ class LevenbergMarquardt(Solver):
     kaula_alpha: float = 0.0
     damping_floor: float = 0.0
     patience: int | None = None
-    lag_known: bool = False
 
     name = "levenberg-marquardt"
 
@@ -91,9 +82,6 @@ class LevenbergMarquardt(Solver):
             normals = problem.arc_normals(theta, train, known=known)
         except PropagationError as exc:
             raise PropagationError(f"the initial parameters do not propagate: {exc}") from None
-        lagged = None
-        if self.lag_known and known is not None and problem.can_add_to(known, theta, train):
-            lagged = _LaggedSums(problem, train, known)
         cost, atr, ata = problem.regularise(theta, normals.cost, normals.atr, normals.ata)
         cost = reg_cost(cost, theta)
         initial_cost = cost
@@ -114,14 +102,10 @@ class LevenbergMarquardt(Solver):
             step = _solve_spd(lhs, -(atr + kaula * theta))
             trial = theta + step
             try:
-                data_cost = problem.cost(trial, train)
-                trial_cost = reg_cost(data_cost + problem.penalty(trial), trial)
+                trial_cost = reg_cost(problem.objective(trial, train), trial)
                 accepted = trial_cost < cost
                 if accepted:
-                    if lagged is None:
-                        trial_normals = problem.arc_normals(trial, train)
-                    else:
-                        trial_normals = lagged(trial, data_cost)
+                    trial_normals = problem.arc_normals(trial, train)
                     _, trial_atr, trial_ata = problem.regularise(
                         trial, trial_normals.cost, trial_normals.atr, trial_normals.ata
                     )
@@ -155,13 +139,6 @@ class LevenbergMarquardt(Solver):
                 outcome = Outcome.CONVERGED
                 message = f"validation cost not lowered by {self.patience} accepted steps"
                 break
-            if lam > self.lambda_ceiling and lagged is not None:
-                # the lagged model no longer gives a descent direction: relinearise every arc
-                lagged = None
-                normals = problem.arc_normals(theta, train)
-                _, atr, ata = problem.regularise(theta, normals.cost, normals.atr, normals.ata)
-                lam = self.lambda0
-                continue
             if lam > self.lambda_ceiling:
                 outcome = Outcome.DAMPING_SATURATED
                 message = "damping saturated: no further decrease possible"
@@ -173,10 +150,6 @@ class LevenbergMarquardt(Solver):
         best_it = best[2] if has_val else it
         if has_val:
             theta, normals = best[1], best[3]
-        if not normals.exact:
-            # the returned sums are exact: the diagnostics count constrained directions from
-            # them and the next stage adds to them
-            normals = problem.arc_normals(theta, train)
         if n_accepted == 0 or (has_val and best_it == 0):
             outcome, message = Outcome.NO_IMPROVEMENT, f"no improvement ({message})"
         return SolveResult(
@@ -189,29 +162,4 @@ class LevenbergMarquardt(Solver):
             message,
             history,
             normals=normals,
-        )
-
-
-class _LaggedSums:
-    """The training arcs' sums at ``theta`` in which the arcs of ``frozen`` (exact sums at
-    ``frozen.params``) keep their Gauss-Newton model: A^T A = H0 and A^T r = g0 + H0 (theta -
-    theta0); the other training arcs' sums are formed exactly."""
-
-    def __init__(self, problem: ArcProblem, train, frozen: ArcNormals):
-        self.problem = problem
-        self.train = problem._indices(train)
-        self.rest = np.setdiff1d(self.train, frozen.arcs)
-        self.frozen = frozen
-
-    def __call__(self, theta: np.ndarray, data_cost: float) -> ArcNormals:
-        rest = self.problem.arc_normals(theta, self.rest)
-        moved = self.frozen.atr + self.frozen.ata @ (theta - self.frozen.params)
-        return ArcNormals(
-            np.array(theta, dtype=float),
-            self.train.copy(),
-            self.problem.fingerprint(self.train),
-            data_cost,
-            moved + rest.atr,
-            self.frozen.ata + rest.ata,
-            exact=False,
         )
