@@ -5,10 +5,8 @@ the parameters of stage k-1 (or from scratch when ``warm_start`` is off). Valida
 chosen once: each stage's arriving arcs are split (seeded by the estimator's seed and the stage)
 and an arc held out once stays held out at every later stage, so no stage ever trains on it.
 
-A warm stage starts from the previous stage's normal equations (formed at its returned
-parameters, the new stage's start) plus the new training arcs'; with network-best's warm
-solver (``lag_known``) the previous arcs then keep that Gauss-Newton model through the stage,
-so each step propagates only the new arcs' sensitivities.
+A warm stage's first normal equations are the previous stage's (formed at its returned
+parameters, the new stage's start) plus the new training arcs'.
 """
 
 from __future__ import annotations
