@@ -51,11 +51,12 @@ def test_bad_config_is_named(data, message):
     assert message in str(info.value) and "my.toml" in str(info.value)
 
 
-def test_continual_warm_iterations_checked():
+@pytest.mark.parametrize("name", ["warm_iterations", "warm_patience"])
+def test_continual_warm_solver_options_checked(name):
     from hamgrav.experiments.continual import ContinualExperimentConfig
 
-    with pytest.raises(InputError, match="warm_iterations must be at least 1, got 0"):
-        ContinualExperimentConfig.from_dict({"warm_iterations": 0}, source="c.toml")
+    with pytest.raises(InputError, match=f"{name} must be at least 1, got 0"):
+        ContinualExperimentConfig.from_dict({name: 0}, source="c.toml")
 
 
 def test_aggregate_median_min_max():

@@ -71,7 +71,7 @@ class CampaignConfig(ExperimentConfig):
         if getattr(self, "harmonic", 0.0) < 0:
             raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
         # the options of lm_iterations_option() and warm-stage caps, where an experiment has them
-        for name in ("lm_iterations", "warm_iterations"):
+        for name in ("lm_iterations", "warm_iterations", "warm_patience"):
             if getattr(self, name, 1) < 1:
                 raise InputError(f"{name} must be at least 1, got {getattr(self, name)}")
         # the campaign file's checks (orbit radii and count, tracking, truth mascons) apply

@@ -46,6 +46,10 @@ class ContinualExperimentConfig(CampaignConfig):
         NETWORK_WARM_SOLVER.max_iter,
         "LM iteration cap of each network member at warm-started stages.",
     )
+    warm_patience: int = option(
+        NETWORK_WARM_SOLVER.patience,
+        "Accepted steps without a lower validation cost after which a warm stage stops.",
+    )
     sh_degree: int = option(8, "SH degree.")
 
 
@@ -73,7 +77,11 @@ class ContinualExperiment(Experiment):
                 config.hidden,
                 config.lm_iterations,
                 harmonic=config.harmonic,
-                warm_solver=replace(NETWORK_WARM_SOLVER, max_iter=config.warm_iterations),
+                warm_solver=replace(
+                    NETWORK_WARM_SOLVER,
+                    max_iter=config.warm_iterations,
+                    patience=config.warm_patience,
+                ),
             ),
             f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
         }
