@@ -228,6 +228,38 @@ def test_an_ensemble_warm_starts_each_member_from_its_block(small_arcs, syntheti
     assert np.array_equal(again.params_[half:], single.params_)
 
 
+def test_a_warm_member_that_keeps_its_block_does_not_speak_for_the_ensemble(
+    small_arcs, synthetic_truth
+):
+    """On a warm start, one member that no step improves keeps its block; the ensemble,
+    whose other member moved, reports that member's outcome, not "kept the starting model"."""
+    settings = {"term": "network", "hidden": (4,), "members": 2}
+    held_out = np.array([2, 6])
+    first = GravityEstimator(
+        body=synthetic_truth.body, seed=3, solver=LevenbergMarquardt(max_iter=1), **settings
+    )
+    first.fit(small_arcs.subset(np.arange(6)), validation=held_out[:1])
+    stuck, free = LevenbergMarquardt(max_iter=2, lambda0=1e20), LevenbergMarquardt(max_iter=6)
+    calls = []
+
+    class FirstMemberStuck(LevenbergMarquardt):
+        def _iterate(self, *args):
+            calls.append(1)
+            return (stuck if len(calls) == 1 else free)._iterate(*args)
+
+    warm = GravityEstimator(
+        body=synthetic_truth.body, seed=3, solver=FirstMemberStuck(), **settings
+    )
+    warm.fit(small_arcs, init=first.params_, validation=np.array([], dtype=int))
+    half = first.params_.size // 2
+    assert np.array_equal(warm.params_[:half], first.params_[:half])
+    assert not np.array_equal(warm.params_[half:], first.params_[half:])
+    members = warm.fitted_.solver["members"]
+    assert [m["outcome"] for m in members] == ["converged", "iteration cap"]
+    assert "member 0: kept its starting block" in warm.result_.message
+    assert "kept the starting model" not in warm.result_.message
+
+
 def test_an_ensemble_cannot_estimate_per_trajectory_parameters(small_arcs, synthetic_truth):
     from hamgrav.core.terms import SolarRadiationPressure
 

@@ -434,7 +434,7 @@ class GravityEstimator:
             )
         elif ensemble:
             result, members = self._fit_members(
-                problem, init, solver, train, validation, callback, checkpoint, resume, reuse
+                problem, init, solver, train, validation, callback, checkpoint, resume, reuse, warm
             )
         else:
             result = solver.solve(
@@ -551,14 +551,16 @@ class GravityEstimator:
         return HarmonicPenalty(model, points, float(self.harmonic))
 
     def _fit_members(
-        self, problem, init, solver, train, validation, callback, checkpoint, resume, reuse
+        self, problem, init, solver, train, validation, callback, checkpoint, resume, reuse, warm
     ):
         """Fit each member of the ensemble on its own, from its block of ``init``; returns the
         ensemble's result (iterations and wall time: totals over the members) and a summary
         per member. A checkpoint holds every member's current block and the member being
         fitted; resuming skips the members before it (their blocks are kept as they are).
         ``reuse``: an earlier ensemble result, whose members' normal equations each member
-        may add to (see :meth:`fit`)."""
+        may add to (see :meth:`fit`). On a ``warm`` start, a member that no step improves
+        keeps its starting block, which is a result, not a failure: the ensemble's outcome
+        comes from the other members."""
         start = time.perf_counter()
         term = problem.model.learnable
         member_problem = self._problem(
@@ -587,6 +589,12 @@ class GravityEstimator:
                 resume=resume if k == first else None,
                 known=_member_normals(reuse, k),
             )
+            if warm and results[k].outcome is Outcome.NO_IMPROVEMENT:
+                results[k] = replace(
+                    results[k],
+                    outcome=Outcome.CONVERGED,
+                    message=f"kept its starting block: no step improved it ({results[k].message})",
+                )
             blocks[k] = results[k].params
         params = np.concatenate(blocks)
         done = [r for r in results if r is not None]
