@@ -136,6 +136,10 @@ def test_a_warm_stage_forms_normal_equations_of_the_new_arcs_only(small_arcs, sy
     finally:
         ArcProblem.arc_normals = arc_normals
     assert second.warm_started and len(starts) == 2
+    # only the newest stage keeps its sums
+    assert run.records[0].result.normals is None
+    assert all(m.normals is None for m in run.records[0].result.members)
+    assert all(m.normals is not None for m in run.records[1].result.members)
     train = np.flatnonzero(~np.isin(second.arcs, second.validation))
     for k, (problem, known, normals) in enumerate(starts):
         assert known is first.result.members[k].normals

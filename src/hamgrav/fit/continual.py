@@ -103,9 +103,20 @@ class ContinualFit:
             warm = False
             estimator.fit(subset, validation=local_val)
         record = StageRecord(k, seen.copy(), held_out.copy(), warm, estimator.result_)
+        if self.records:
+            # only the newest stage's normal equations are added to: drop the older ones
+            # (n_params^2 per member and stage)
+            last = self.records[-1]
+            self.records[-1] = replace(last, result=_without_normals(last.result))
         self.records.append(record)
         estimator.fitted_ = replace(estimator.fitted_, stages=[r.summary() for r in self.records])
         return record
+
+
+def _without_normals(result: SolveResult) -> SolveResult:
+    """``result`` without its (and its members') normal equations."""
+    members = tuple(m if m is None else replace(m, normals=None) for m in result.members)
+    return replace(result, normals=None, members=members)
 
 
 def fit_continual(
