@@ -605,6 +605,7 @@ def fit(
             estimator.fit(
                 arcs,
                 init=theta0,
+                warm=init is not None,
                 callback=on_iteration,
                 checkpoint=lambda th, st: save_checkpoint(ckpt, th, st, identity),
                 resume=resume_state,

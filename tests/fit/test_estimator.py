@@ -309,7 +309,9 @@ def test_warm_starts_run_the_warm_solver(small_arcs, synthetic_truth):
 
 def test_an_ensemble_resumes_at_the_member_it_was_fitting(small_arcs, synthetic_truth):
     solver = LevenbergMarquardt(max_iter=6, lambda0=1e2, damping_floor=1e-8)
-    settings = {"term": "network", "hidden": (4,), "solver": solver}
+    # a resumed fit from scratch is not a warm start: the warm solver must not run
+    warm_solver = LevenbergMarquardt(max_iter=1)
+    settings = {"term": "network", "hidden": (4,), "solver": solver, "warm_solver": warm_solver}
     saved = []
     full = GravityEstimator(body=synthetic_truth.body, seed=2, members=2, **settings)
     full.fit(small_arcs, checkpoint=lambda th, st: saved.append((th.copy(), dict(st))))
@@ -324,3 +326,4 @@ def test_an_ensemble_resumes_at_the_member_it_was_fitting(small_arcs, synthetic_
     members = again.fitted_.solver["members"]
     assert members[0]["message"] == "restored from the checkpoint"
     assert members[1]["iterations"] >= 1
+    assert again.fitted_.solver["max_iter"] == 6

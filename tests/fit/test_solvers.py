@@ -122,27 +122,36 @@ def test_a_warm_stage_forms_normal_equations_of_the_new_arcs_only(small_arcs, sy
     run = ContinualFit(est, small_arcs)
     first = run.add(stages[0])
     starts = []
-    arc_normals = ArcProblem.arc_normals
+    arc_normals, normal_equations = ArcProblem.arc_normals, ArcProblem.normal_equations
+    formed = []
 
     def spy(problem, theta, arc_indices=None, *, known=None, **kw):
+        formed.clear()
         normals = arc_normals(problem, theta, arc_indices, known=known, **kw)
         if known is not None:
-            starts.append((problem, known, normals))
+            starts.append((problem, known, normals, sorted(np.concatenate(formed))))
         return normals
 
-    ArcProblem.arc_normals = spy
+    def spy_formed(problem, theta, arc_indices=None, *args, **kw):
+        formed.append(np.asarray(arc_indices))
+        return normal_equations(problem, theta, arc_indices, *args, **kw)
+
+    ArcProblem.arc_normals, ArcProblem.normal_equations = spy, spy_formed
     try:
         second = run.add(stages[1])
     finally:
-        ArcProblem.arc_normals = arc_normals
+        ArcProblem.arc_normals, ArcProblem.normal_equations = arc_normals, normal_equations
     assert second.warm_started and len(starts) == 2
     # only the newest stage keeps its sums
     assert run.records[0].result.normals is None
     assert all(m.normals is None for m in run.records[0].result.members)
     assert all(m.normals is not None for m in run.records[1].result.members)
     train = np.flatnonzero(~np.isin(second.arcs, second.validation))
-    for k, (problem, known, normals) in enumerate(starts):
+    for k, (problem, known, normals, propagated) in enumerate(starts):
         assert known is first.result.members[k].normals
+        # only the new training arcs were propagated for the first normal equations
+        assert propagated == sorted(set(train) - set(known.arcs))
+        assert len(propagated) and set(propagated) <= set(range(5, 9))
         assert np.array_equal(known.params, normals.params)
         assert set(known.arcs) < set(train) and np.array_equal(normals.arcs, train)
         fresh = problem.normal_equations(normals.params, train, regularised=False)

@@ -261,14 +261,16 @@ class ArcProblem:
 
     def fingerprint(self, arc_indices=None) -> str:
         """SHA-256 (hex) of what the arcs' sums at given parameters depend on: the selected
-        arcs' data (:meth:`Arcs.digest`), the model's description, the whitening and the
-        parameter layout. Kept per selection: a fit asks for it once per training set."""
-        idx = self._indices(arc_indices)
+        arcs' data (:meth:`Arcs.digest`), the model's description, the whitening, the
+        parameter layout and the integrator settings. Kept per selection: a fit asks for it
+        once per training set."""
+        idx = np.asarray(self._indices(arc_indices), dtype=np.intp)
         key = idx.tobytes()
         if key not in self._fingerprints:
             h = hashlib.sha256(self.arcs.subset(idx).digest().encode())
             h.update(json.dumps(self.model.describe(), sort_keys=True, default=repr).encode())
-            h.update(repr((self.n_params, self.estimate_trajectory_params)).encode())
+            layout = (self.n_params, self.estimate_trajectory_params, self.tol, self.max_steps)
+            h.update(repr(layout).encode())
             for array in (self.whitening, self.trajectory_values):
                 h.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
             self._fingerprints[key] = h.hexdigest()
@@ -289,9 +291,11 @@ class ArcProblem:
             rest = np.setdiff1d(idx, known.arcs)
             base = (known.cost, known.atr, known.ata)
         cost, atr, ata = self.normal_equations(theta, rest, chunk, regularised=False)
-        return ArcNormals(
-            theta, idx.copy(), self.fingerprint(idx), base[0] + cost, base[1] + atr, base[2] + ata
-        )
+        atr, ata = base[1] + atr, base[2] + ata
+        for array in (theta, atr, ata):
+            # kept across fits (the next stage adds to them): nobody may change them in place
+            array.flags.writeable = False
+        return ArcNormals(theta, idx.copy(), self.fingerprint(idx), base[0] + cost, atr, ata)
 
     def _applies(self, known: ArcNormals, theta: np.ndarray, idx: np.ndarray) -> bool:
         return (

@@ -76,7 +76,9 @@ class ContinualFit:
         return self.records[-1].result.params if self.records else None
 
     def add(self, new: Sequence[int]) -> StageRecord:
-        """Fit the next stage, which brings the arcs ``new`` (indices into ``arcs``)."""
+        """Fit the next stage, which brings the arcs ``new`` (indices into ``arcs``). The
+        returned record's result holds the stage's normal equations (n_params^2 per member),
+        which the next stage adds to; ``records`` drops them from older stages."""
         estimator = self.estimator
         k = len(self.records)
         new = np.asarray(new, dtype=int)

@@ -376,6 +376,7 @@ class GravityEstimator:
         checkpoint=None,
         resume: dict | None = None,
         reuse: SolveResult | None = None,
+        warm: bool | None = None,
     ) -> GravityEstimator:
         """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
         stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`),
@@ -383,7 +384,11 @@ class GravityEstimator:
         ``reuse``: the result that ended at ``init`` (e.g. the previous stage's
         :attr:`result_`); the normal equations it formed of its training arcs are added to,
         not recomputed, where those arcs are among this fit's training arcs at the same
-        indices with the same data (checked by fingerprint; otherwise they are recomputed)."""
+        indices with the same data (checked by fingerprint; otherwise they are recomputed).
+        ``warm``: whether ``init`` is an earlier model's parameters (a warm start: the
+        ``warm_solver`` runs, and an ensemble member that no step improves keeps its block)
+        rather than this fit's own checkpoint being resumed; default: ``init`` is given and
+        ``resume`` is not."""
         model, prior_info = self.build_model(arcs)
         problem = self._problem(model, arcs)
         ensemble = isinstance(model.learnable, NeuralPotential) and model.learnable.members > 1
@@ -393,7 +398,9 @@ class GravityEstimator:
                 "fit with members=1"
             )
         members = None
-        warm = init is not None
+        if warm is None:
+            warm = init is not None and resume is None
+        warm = bool(warm) and init is not None
         if init is None:
             init = self.initial_params(model, arcs)
         init = np.asarray(init, dtype=float)
@@ -589,6 +596,8 @@ class GravityEstimator:
                 resume=resume if k == first else None,
                 known=_member_normals(reuse, k),
             )
+            # a warm member's start is a fitted model (the fit-level check below still
+            # reports an ensemble that does not beat no correction)
             if warm and results[k].outcome is Outcome.NO_IMPROVEMENT:
                 results[k] = replace(
                     results[k],
