@@ -774,3 +774,19 @@ def test_fuzz_oem_reader(oem_original, data):
     fields[column] = bad
     lines[row] = " ".join(fields)
     assert _import_outcome("\n".join(lines) + "\n", body) is None
+
+
+@pytest.mark.parametrize("kind", ["arcs", "model"])
+def test_a_misshapen_origin_is_refused_on_one_line(kind, tmp_path):
+    """The case the model-file fuzzer found: an array-valued body origin is named by its
+    shape, not printed over several lines."""
+    path = tmp_path / f"{kind}.h5"
+    path.write_bytes(_originals()[kind])
+    _set_h5(path, "@body_origin_m", np.zeros((2, 2, 2)), keep_checksum=False)
+    reader = load_arcs if kind == "arcs" else load_model
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HamgravWarning)  # an old-style file, no checksum
+        with pytest.raises(HamgravError) as info:
+            reader(path)
+    message = str(info.value)
+    assert "\n" not in message and "body_origin_m" in message and "shape (2, 2, 2)" in message

@@ -207,7 +207,8 @@ def _read(f, path: Path) -> Arcs:
                 f"states beyond {MAX_STATE:g} synchronous radii are not tracking data"
             )
     if origin.shape != (3,) or not np.all(np.isfinite(origin)):
-        raise DatasetError(f"attribute 'body_origin_m' must be 3 finite numbers, got {origin}")
+        got = f"shape {origin.shape}" if origin.shape != (3,) else str(origin.tolist())
+        raise DatasetError(f"attribute 'body_origin_m' must be 3 finite numbers, got {got}")
     if positions.ndim != 2 or positions.shape[1:] != (3,) or masses.shape != positions.shape[:1]:
         raise DatasetError(
             f"truth mascons need positions (n, 3) and masses (n,), got {positions.shape} and "

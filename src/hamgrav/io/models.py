@@ -230,7 +230,8 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
         raise ModelFileError(f"file inconsistent: {problem}")
     origin = np.asarray(_attr(f, "body_origin_m"), dtype=float)
     if origin.shape != (3,) or not np.all(np.isfinite(origin)):
-        raise ModelFileError(f"attribute 'body_origin_m' must be 3 finite numbers, got {origin}")
+        got = f"shape {origin.shape}" if origin.shape != (3,) else str(origin.tolist())
+        raise ModelFileError(f"attribute 'body_origin_m' must be 3 finite numbers, got {got}")
     training = json.loads(_attr(f, "training")) if "training" in f.attrs else {}
     dicts = {k: json.loads(_attr(f, k)) for k in ("prior", "solver")}
     stages = json.loads(_attr(f, "stages"))
