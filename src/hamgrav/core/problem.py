@@ -285,17 +285,15 @@ class ArcProblem:
         (other parameters, arcs or data) are ignored."""
         idx = self._indices(arc_indices)
         theta = np.array(theta, dtype=float)
-        rest = idx
-        base = (0.0, np.zeros(self.n_params), np.zeros((self.n_params, self.n_params)))
-        if known is not None and self._applies(known, theta, idx):
-            rest = np.setdiff1d(idx, known.arcs)
-            base = (known.cost, known.atr, known.ata)
+        applies = known is not None and self._applies(known, theta, idx)
+        rest = np.setdiff1d(idx, known.arcs) if applies else idx
         cost, atr, ata = self.normal_equations(theta, rest, chunk, regularised=False)
-        atr, ata = base[1] + atr, base[2] + ata
+        if applies:
+            cost, atr, ata = known.cost + cost, known.atr + atr, known.ata + ata
         for array in (theta, atr, ata):
             # kept across fits (the next stage adds to them): nobody may change them in place
             array.flags.writeable = False
-        return ArcNormals(theta, idx.copy(), self.fingerprint(idx), base[0] + cost, atr, ata)
+        return ArcNormals(theta, idx.copy(), self.fingerprint(idx), cost, atr, ata)
 
     def _applies(self, known: ArcNormals, theta: np.ndarray, idx: np.ndarray) -> bool:
         return (
