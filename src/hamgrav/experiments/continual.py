@@ -1,8 +1,7 @@
 """Continual learning: the campaign arriving in stages, each stage's fit warm-started from the
 previous one, against fitting all arcs so far from scratch at every stage. Warm network stages
 use the preset's warm solver, :data:`~hamgrav.fit.estimator.NETWORK_WARM_SOLVER` (at most 10
-iterations per member, stopping after 3 accepted steps that do not lower the validation cost
-once a step has lowered it).
+iterations per member, stopping after 3 accepted steps that do not lower the validation cost).
 
 The 112 arcs of the descent campaign arrive in ``stages`` stages of whole orbits (orbit grid
 order); the network (the ``network-best`` configuration) and SH 8 are fitted at every stage,
@@ -49,8 +48,7 @@ class ContinualExperimentConfig(CampaignConfig):
     )
     warm_patience: int = option(
         NETWORK_WARM_SOLVER.patience,
-        "Accepted steps without a lower validation cost (counted once a step has lowered it) "
-        "after which a warm stage stops.",
+        "Accepted steps without a lower validation cost after which a warm stage stops.",
     )
     sh_degree: int = option(8, "SH degree.")
 

@@ -77,11 +77,7 @@ NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=20, rtol=1e-9, lambda0=1e-2, d
 #: (deep-region error 1.13 -> 0.47, seed 0).
 NETWORK_BEST_HARMONIC = 1e-5
 #: Warm-started continual stages start near the optimum: at most 10 iterations per member,
-#: stopping after 3 accepted steps that do not lower the validation cost, counted once a step
-#: has lowered it. Counted from the start instead, all three members of one continual draw
-#: (results/continual-itokawa, seed 2) kept their stage-3 blocks at r1.2 0.117 while the fit
-#: from scratch reached 0.079; running the budget out they reach 0.056 (a study with
-#: single-threaded BLAS, as on the runner's workers).
+#: stopping after 3 accepted steps that do not lower the validation cost.
 NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=3)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).

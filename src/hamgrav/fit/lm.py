@@ -50,9 +50,7 @@ class LevenbergMarquardt(Solver):
     that fraction of its largest entry, so that parameters the data barely see (weights of
     saturated tanh units, diag ~ 1e-50) are damped too. With validation arcs and
     ``patience``, the fit stops after ``patience`` accepted steps in a row that do not lower
-    the best validation cost (rejected trials leave the iterate unchanged and do not count),
-    counted from the first step that lowers it: until then the fit runs its whole budget, as
-    the first steps from a good start often raise the validation cost before lowering it.
+    the best validation cost (rejected trials leave the iterate unchanged and do not count).
     """
 
     lambda0: float = 1e-6
@@ -95,8 +93,7 @@ class LevenbergMarquardt(Solver):
             history["validation"] = [problem.cost(theta, validation)]
             best = (history["validation"][0], theta.copy(), 0, normals)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
-        # accepted steps since the best validation cost, counted once a step has lowered it
-        stale = 0
+        stale = 0  # accepted steps since the best validation cost
         for it in range(1, self.max_iter + 1):
             scaling = np.diag(ata)
             if self.damping_floor > 0:
@@ -130,7 +127,7 @@ class LevenbergMarquardt(Solver):
                 history["validation"].append(val)
                 if val < best[0]:
                     best, stale = (val, theta.copy(), it, normals), 0
-                elif accepted and best[2] > 0:
+                elif accepted:
                     stale += 1
             if callback is not None:
                 callback(it, {k: v[-1] for k, v in history.items()})
