@@ -249,3 +249,64 @@ def test_continual_stages_never_train_on_validation_arcs(small_arcs, synthetic_t
         assert np.array_equal(record.arcs[validation], record.validation)
         assert not set(record.arcs[train]) & set(record.validation)
         assert np.array_equal(arcs.times, small_arcs.times[record.arcs])
+
+
+class _OneParameterProblem:
+    """Training cost (theta - 1)^2 / 2 in one parameter; the validation cost is the given
+    function of theta (arc index 1 is the validation arc, 0 the training arc)."""
+
+    n_params = 1
+    model = Model((PointMass(),), None)
+
+    def __init__(self, validation_cost):
+        self.validation_cost = validation_cost
+
+    def objective(self, theta, idx=None):
+        return 0.5 * float(theta[0] - 1.0) ** 2
+
+    def cost(self, theta, idx=None):
+        if idx is not None and list(idx) == [1]:
+            return float(self.validation_cost(float(theta[0])))
+        return self.objective(theta)
+
+    def arc_normals(self, theta, idx=None, known=None):
+        from hamgrav.core.problem import ArcNormals
+
+        r = float(theta[0] - 1.0)
+        return ArcNormals(
+            theta.copy(), np.array([0]), "", 0.5 * r * r, np.array([r]), np.array([[1.0]])
+        )
+
+    def regularise(self, theta, cost, atr, ata):
+        return cost, atr, ata
+
+
+def _patient_fit(validation_cost, patience):
+    # large initial damping: short steps from 0 towards 1 (theta about 0.09, 0.30, 0.63, ...)
+    solver = LevenbergMarquardt(lambda0=10.0, max_iter=8, rtol=0.0, patience=patience)
+    problem = _OneParameterProblem(validation_cost)
+    return solver.solve(problem, np.zeros(1), train=np.array([0]), validation=np.array([1]))
+
+
+def test_patience_counts_accepted_steps_without_a_validation_gain_from_the_start():
+    # the validation cost rises over the first two accepted steps, then falls below its start
+    def rises_then_falls(t):
+        return 1.0 + t - 2.0 * t * t
+
+    stopped = _patient_fit(rises_then_falls, 2)
+    assert stopped.iterations == 2
+    assert stopped.outcome.value == "no improvement"
+    np.testing.assert_array_equal(stopped.params, [0.0])
+    waited = _patient_fit(rises_then_falls, 3)
+    assert waited.iterations == 8
+    assert waited.best_iteration > 2
+    assert waited.params[0] > 0.6
+
+
+def test_patience_stops_after_that_many_steps_without_a_gain():
+    # the first step lowers the validation cost, the next ones raise it
+    result = _patient_fit(lambda t: (t - 0.1) ** 2, 2)
+    assert result.iterations == 3
+    assert result.best_iteration == 1
+    assert "validation cost not lowered by 2 accepted steps" in result.message
+    np.testing.assert_allclose(result.params, [1 / 11])

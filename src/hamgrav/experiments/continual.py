@@ -1,7 +1,7 @@
 """Continual learning: the campaign arriving in stages, each stage's fit warm-started from the
 previous one, against fitting all arcs so far from scratch at every stage. Warm network stages
 use the preset's warm solver, :data:`~hamgrav.fit.estimator.NETWORK_WARM_SOLVER` (at most 10
-iterations per member, stopping after 3 accepted steps that do not lower the validation cost).
+iterations per member, stopping after 4 accepted steps that do not lower the validation cost).
 
 The 112 arcs of the descent campaign arrive in ``stages`` stages of whole orbits (orbit grid
 order); the network (the ``network-best`` configuration) and SH 8 are fitted at every stage,
