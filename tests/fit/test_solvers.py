@@ -6,7 +6,7 @@ import pytest
 from scipy import stats
 
 from hamgrav.core.model import Model
-from hamgrav.core.problem import ArcProblem
+from hamgrav.core.problem import ArcNormals, ArcProblem
 from hamgrav.core.terms import (
     NeuralPotential,
     PointMass,
@@ -270,8 +270,6 @@ class _OneParameterProblem:
         return self.objective(theta)
 
     def arc_normals(self, theta, idx=None, known=None):
-        from hamgrav.core.problem import ArcNormals
-
         r = float(theta[0] - 1.0)
         return ArcNormals(
             theta.copy(), np.array([0]), "", 0.5 * r * r, np.array([r]), np.array([[1.0]])

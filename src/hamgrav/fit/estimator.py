@@ -82,8 +82,9 @@ NETWORK_BEST_HARMONIC = 1e-5
 #: accepted step 1-4 when it matters (to 0.57-0.76 of its start; gains first found at steps
 #: 5 and 7 were below 3 %), and a third of the members never gain in 10 iterations. At 3 the
 #: gains found at step 4 were lost: one draw's warm fit stayed at r1.2 0.117 where the fit from
-#: scratch reached 0.079. Running every member's budget out fixes that draw (0.056) but costs
-#: warm / scratch wall 0.59 instead of 0.47 (8 draws).
+#: scratch reached 0.079 (results/continual-itokawa, patience 4: 0.069). Counting the
+#: patience only from a member's first gain also fixes that draw, but its members without a
+#: gain run all 10 iterations: warm / scratch wall 0.59 over the 8 draws (0.54 at 4).
 NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=4)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).

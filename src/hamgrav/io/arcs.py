@@ -27,7 +27,7 @@ from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
 from ..errors import DatasetError
 from .files import atomic_path
-from .hdf5 import READ_ERRORS, create, open_for_reading, seal, write_array
+from .hdf5 import READ_ERRORS, body_origin, create, open_for_reading, seal, write_array
 
 __all__ = ["save_arcs", "load_arcs", "MAX_STATE"]
 
@@ -163,7 +163,7 @@ def _read(f, path: Path) -> Arcs:
     kinds = _json(f, "trajectory_kind", list)
     if not all(isinstance(k, str) for k in kinds):
         raise DatasetError("attribute 'trajectory_kind' must list trajectory kinds (strings)")
-    origin = np.asarray(_attr(f, "body_origin_m"), dtype=float)
+    origin = _attr(f, "body_origin_m")
     metadata = {
         "body_name": str(_attr(f, "body_name")),
         "gm_m3_s2": _number(f, "gm_m3_s2", 0.0, open_low=True),
@@ -206,9 +206,7 @@ def _read(f, path: Path) -> Arcs:
                 f"dataset {name!r} holds a state component of {largest:.3g} (canonical); "
                 f"states beyond {MAX_STATE:g} synchronous radii are not tracking data"
             )
-    if origin.shape != (3,) or not np.all(np.isfinite(origin)):
-        got = f"shape {origin.shape}" if origin.shape != (3,) else str(origin.tolist())
-        raise DatasetError(f"attribute 'body_origin_m' must be 3 finite numbers, got {got}")
+    origin = body_origin(origin, DatasetError)
     if positions.ndim != 2 or positions.shape[1:] != (3,) or masses.shape != positions.shape[:1]:
         raise DatasetError(
             f"truth mascons need positions (n, 3) and masses (n,), got {positions.shape} and "
@@ -227,7 +225,7 @@ def _read(f, path: Path) -> Arcs:
         trajectory=trajectory,
         trajectory_kind=tuple(kinds),
         trajectory_info=info,
-        body_origin_m=tuple(float(v) for v in origin),
+        body_origin_m=origin,
         truth=MasconSet(positions, masses),
         **metadata,
     )

@@ -31,6 +31,7 @@ from ..errors import DatasetError, HamgravWarning
 __all__ = [
     "READ_ERRORS",
     "USERBLOCK",
+    "body_origin",
     "create",
     "open_for_reading",
     "seal",
@@ -157,3 +158,13 @@ def open_for_reading(
         yield f
     finally:
         f.close()
+
+
+def body_origin(value, error: type[Exception]) -> tuple[float, float, float]:
+    """The ``body_origin_m`` attribute's ``value`` [m, mesh frame] as three floats; raises
+    ``error`` with a one-line message (the array's shape, or its values when not finite)."""
+    origin = np.asarray(value, dtype=float)
+    if origin.shape != (3,) or not np.all(np.isfinite(origin)):
+        got = f"shape {origin.shape}" if origin.shape != (3,) else str(origin.tolist())
+        raise error(f"attribute 'body_origin_m' must be 3 finite numbers, got {got}")
+    return tuple(float(v) for v in origin)

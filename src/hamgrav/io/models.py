@@ -43,7 +43,7 @@ from ..core.model import Model
 from ..errors import DatasetError, HamgravWarning
 from ..fit.fitted import FittedModel
 from .files import atomic_path
-from .hdf5 import READ_ERRORS, create, open_for_reading, seal, write_array
+from .hdf5 import READ_ERRORS, body_origin, create, open_for_reading, seal, write_array
 
 __all__ = [
     "ModelFileError",
@@ -228,10 +228,7 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
     problem = _params_problem(model, params, per_trajectory)
     if problem:
         raise ModelFileError(f"file inconsistent: {problem}")
-    origin = np.asarray(_attr(f, "body_origin_m"), dtype=float)
-    if origin.shape != (3,) or not np.all(np.isfinite(origin)):
-        got = f"shape {origin.shape}" if origin.shape != (3,) else str(origin.tolist())
-        raise ModelFileError(f"attribute 'body_origin_m' must be 3 finite numbers, got {got}")
+    origin = body_origin(_attr(f, "body_origin_m"), ModelFileError)
     training = json.loads(_attr(f, "training")) if "training" in f.attrs else {}
     dicts = {k: json.loads(_attr(f, k)) for k in ("prior", "solver")}
     stages = json.loads(_attr(f, "stages"))
@@ -247,7 +244,7 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
         body_name=str(_attr(f, "body_name")),
         gm_m3_s2=_positive(f, "gm_m3_s2"),
         spin_period_s=_positive(f, "spin_period_s"),
-        body_origin_m=tuple(float(v) for v in origin),
+        body_origin_m=origin,
         estimate_trajectory_params=per_trajectory,
         history=_read_history(f["history"]),
         stages=stages,
