@@ -195,6 +195,30 @@ def test_tracked_descents_end_at_the_surface(synthetic_truth):
     assert np.all(arcs.trajectory_info["duration_s"] >= 39 * 14.0)
 
 
+def test_a_whole_descent_arc_spans_release_to_contact(synthetic_truth):
+    """With span "whole" the same descents are tracked from their release state to their
+    contact, samples evenly spaced; the truth's states are the same trajectory."""
+    body = synthetic_truth.body
+    tracking = TrackingConfig(samples_per_arc=40, cadence_s=14.0)
+    end = tracked_descents(synthetic_truth, 2, DescentConfig(), tracking, seed=2)
+    whole = tracked_descents(synthetic_truth, 2, DescentConfig(), tracking, seed=2, span="whole")
+    assert whole.samples_per_arc == 40 and whole.config["span"] == "whole"
+    np.testing.assert_allclose(whole.times[:, 0], 0.0)
+    duration = whole.trajectory_info["duration_s"] / body.units.time_s
+    np.testing.assert_allclose(whole.times[:, -1], duration, rtol=1e-12)
+    steps = np.diff(whole.times, axis=1)
+    np.testing.assert_allclose(steps, np.repeat(duration[:, None] / 39, 39, axis=1), rtol=1e-9)
+    np.testing.assert_allclose(
+        whole.true_states[:, 0], whole.trajectory_info["initial_state"], atol=1e-12
+    )
+    length = body.units.length_m
+    contact = whole.trajectory_info["contact_point"]
+    assert np.all(np.linalg.norm(whole.true_states[:, -1, :3] - contact, axis=1) * length < 0.01)
+    np.testing.assert_allclose(whole.true_states[:, -1], end.true_states[:, -1], atol=1e-9)
+    with pytest.raises(InputError, match="span must be one of end, whole"):
+        tracked_descents(synthetic_truth, 1, span="all")
+
+
 def test_joined_arcs_number_the_descents_after_the_orbits(campaign, synthetic_truth):
     descents = tracked_descents(synthetic_truth, 2, seed=1)
     joined = join_arcs(campaign, descents)

@@ -194,6 +194,8 @@ def test_descent_with_both_blocks_tiny(tmp_path):
         (["deep", "--map-degrees", "5"], "map_degrees must be among sh_degrees"),
         (["deep", "--deep-bins-rb", "0.9,0.5"], "deep_bins_rb must be two or more increasing"),
         (["deep", "--stages", "19"], "stages must lie between 1 and --orbits (18)"),
+        (["deep", "--descent-span", "all"], "descent_span must be one of end, whole"),
+        (["deep", "--descent-iterations", "-1"], "descent_iterations must be 0 or more"),
     ],
 )
 def test_experiment_rejects_an_unknown_choice(tmp_path, args, message):
@@ -339,6 +341,33 @@ def test_deep_tiny(tmp_path):
         assert (out / name).stat().st_size > 1000 and f"- `{name}`: " in readme
     again = runner.invoke(app, ["experiment", "readme", str(out)])
     assert again.exit_code == 0 and (out / "README.md").read_text() == readme
+
+
+def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
+    out = tmp_path / "deep"
+    args = [
+        "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
+        "--stages", "2", "--sh-degrees", "2", "--map-degrees", "2", "--hidden", "4",
+        "--lm-iterations", "3", "--warm-iterations", "2", "--altitude-m", "30",
+        "--map-points", "11", "--descents", "2", "--descent-degrees", "2",
+        "--descent-span", "whole", "--descent-iterations", "3",
+        "--random-orders", "0", "--no-d-optimal", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    descents = rep["descents"]
+    # the arcs start at release and end at contact
+    assert descents["arc_start_radius_rb"] == [1.3, 1.3]
+    assert descents["arc_radius_rb"]["max"] == 1.3
+    # the network ran its fixed budget on every member (3 members x 3 iterations)
+    fits = descents["fits"]
+    assert fits["network-best"]["iterations"] == 9 and fits["network-best"]["warm_started"]
+    assert fits["sh2"]["warm_started"]
+    assert set(rep["deep_bins_after_descents"]) == {"sh2", "network-best"}
+    readme = (out / "README.md").read_text()
+    assert "40 samples spread evenly from release to contact" in readme
+    assert "the network runs 3 LM iterations per member" in readme
 
 
 def test_deep_tiny_without_the_later_parts(tmp_path):

@@ -251,6 +251,43 @@ def test_continual_stages_never_train_on_validation_arcs(small_arcs, synthetic_t
         assert np.array_equal(arcs.times, small_arcs.times[record.arcs])
 
 
+def test_a_stage_without_validation_trains_every_new_arc_but_no_earlier_hold_out(
+    small_arcs, synthetic_truth
+):
+    """``add(new, validate=False)``: none of the new arcs is held out, the arcs held out at
+    earlier stages are not trained on, the fit has no validation arcs (its last iterate is
+    returned) and the given solver runs."""
+    est = GravityEstimator(
+        "network",
+        hidden=(4,),
+        members=2,
+        validation_fraction=0.25,
+        solver=LevenbergMarquardt(max_iter=2),
+        body=synthetic_truth.body,
+    )
+    run = ContinualFit(est, small_arcs)
+    first = run.add(np.arange(0, 5))
+    assert len(first.validation) == 1
+    fitted = []
+    fit = est.fit
+
+    def spy(arcs, **kw):
+        fitted.append((arcs, kw))
+        return fit(arcs, **kw)
+
+    est.fit = spy
+    solver = LevenbergMarquardt(max_iter=3, rtol=0.0)
+    second = run.add(np.arange(5, 9), validate=False, solver=solver)
+    ((arcs, kw),) = fitted
+    assert np.array_equal(second.validation, first.validation)
+    assert second.warm_started and second.n_arcs == 9
+    trained = np.setdiff1d(np.arange(9), first.validation)
+    np.testing.assert_array_equal(arcs.times, small_arcs.times[trained])
+    assert kw["validation"].size == 0 and kw["solver"] is solver
+    assert second.result.solver["max_iter"] == 3
+    assert "validation" not in second.result.members[0].history
+
+
 class _OneParameterProblem:
     """Training cost (theta - 1)^2 / 2 in one parameter; the validation cost is the given
     function of theta (arc index 1 is the validation arc, 0 the training arc)."""

@@ -21,11 +21,13 @@ The later parts are further stage sequences fed to the same continual fit
 - Descent assimilation (``descents``, default 9; 0: off): deployment descents released at
   1.3 R_B (at rest in inertial space plus a 1-3 cm/s inward manoeuvre,
   :class:`hamgrav.sim.descent.DescentConfig`), flown under the truth to contact and tracked as
-  one arc each (the orbital arcs' 40 samples at 14 s, the last at contact, the same noise;
-  :func:`hamgrav.sim.descent.tracked_descents`). They arrive as a seventh stage after the
-  fixed order's six: the network and the SH degrees of ``descent_degrees`` are warm-refitted
-  on the 126 + 9 arcs from their stage-6 parameters (the network holds out its usual share of
-  the arriving arcs for validation, here one descent) and the deep bins are evaluated again.
+  one arc each (the orbital arcs' 40 samples and noise; ``descent_span``: at 14 s ending at
+  contact, or spread over the whole fall; :func:`hamgrav.sim.descent.tracked_descents`). They
+  arrive as a seventh stage after the fixed order's six: the network and the SH degrees of
+  ``descent_degrees`` are warm-refitted on the 126 + 9 arcs from their stage-6 parameters
+  (by default the network holds out its usual share of the arriving arcs for validation, here
+  one descent; with ``descent_iterations`` every descent is trained, without a validation
+  stop) and the deep bins are evaluated again.
 - Arrival orders (``random_orders``, default 5; 0: off): the same orbits under seeded random
   permutations, split into the same stage sizes, the network alone warm-refitted stage by
   stage; the mean exterior error after each stage.
@@ -59,7 +61,7 @@ from ..errors import InputError
 from ..fit.continual import ContinualFit
 from ..fit.design import OrbitPlan, choose_from_plans, orbit_plans
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
-from ..sim.descent import DescentConfig, tracked_descents
+from ..sim.descent import DESCENT_SPANS, DescentConfig, tracked_descents
 from .common import (
     CampaignConfig,
     campaign_artefacts,
@@ -160,8 +162,19 @@ class DeepExperimentConfig(CampaignConfig):
     map_points: int = option(161, "Grid points along each side of the equatorial maps.")
     descents: int = option(
         9,
-        "Deployment descents tracked as one arc each (40 samples at 14 s ending at contact) "
-        "and assimilated after the last stage (0: off).",
+        "Deployment descents tracked as one arc each (see descent_span) and assimilated "
+        "after the last stage (0: off).",
+    )
+    descent_span: str = option(
+        "end",
+        "What a descent's arc covers: 'end', its last 40 samples at 14 s, ending at contact; "
+        "'whole', 40 samples spread from release to contact.",
+    )
+    descent_iterations: int = option(
+        0,
+        "0: the descents arrive as a continual stage (one held out for validation, the warm "
+        "stage's solver); n > 0: every descent is trained and each model refitted without a "
+        "validation stop, the network by n LM iterations per member.",
     )
     descent_degrees: tuple[int, ...] = option(
         (8, 12),
@@ -191,6 +204,12 @@ class DeepExperimentConfig(CampaignConfig):
             raise InputError("hidden must be one or more positive layer sizes, e.g. 24,24")
         if self.lm_iterations < 1 or self.warm_iterations < 1:
             raise InputError("lm_iterations and warm_iterations must be at least 1")
+        if self.descent_span not in DESCENT_SPANS:
+            raise InputError(
+                f"descent_span must be one of {', '.join(DESCENT_SPANS)}, got {self.descent_span!r}"
+            )
+        if self.descent_iterations < 0:
+            raise InputError(f"descent_iterations must be 0 or more, got {self.descent_iterations}")
         if not self.altitude_m > 0:
             raise InputError(f"altitude_m must be positive, got {self.altitude_m}")
         if not self.shells_rb or any(s <= 1.0 for s in self.shells_rb):
@@ -548,7 +567,12 @@ class DeepExperiment(Experiment):
         all_arcs, descent_idx, descents = arcs, None, None
         if config.descents:
             desc = tracked_descents(
-                truth, config.descents, DescentConfig(), tracking, seed=ctx.seed
+                truth,
+                config.descents,
+                DescentConfig(),
+                tracking,
+                seed=ctx.seed,
+                span=config.descent_span,
             )
             all_arcs = join_arcs(arcs, desc)
             descent_idx = np.arange(arcs.n_arcs, all_arcs.n_arcs)
@@ -600,7 +624,21 @@ class DeepExperiment(Experiment):
             fixed_fit = est.fitted_.solver
             lap("fixed_order")
             if name in refit:
-                record = run.add(descent_idx)
+                if config.descent_iterations:
+                    # all descents trained, no validation stop: the network runs a fixed
+                    # budget, SH its own solver to convergence
+                    solver = (
+                        replace(
+                            settings["warm_solver"],
+                            max_iter=config.descent_iterations,
+                            patience=None,
+                        )
+                        if name == NETWORK
+                        else None
+                    )
+                    record = run.add(descent_idx, validate=False, solver=solver)
+                else:
+                    record = run.add(descent_idx)
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
                 lap("descent_refits")

@@ -379,17 +379,32 @@ def _descents_section(report: dict, net: str) -> list[str]:
     agg_before = report["aggregate"]["deep_bins"]
     agg_after = report["aggregate"].get("deep_bins_after_descents", {})
     d_agg = report["aggregate"].get("descents_summary", {})
+    cfg = report["config"]
+    if cfg.get("descent_span", "end") == "whole":
+        tracked = "40 samples spread evenly from release to contact"
+    else:
+        tracked = "40 samples at 14 s ending at contact"
+    iterations = cfg.get("descent_iterations", 0)
+    if iterations:
+        refit = (
+            "every descent trained, with no validation stop; the earlier hold-outs stay "
+            f"untrained; the network runs {iterations} LM iterations per member, SH its own "
+            "solver"
+        )
+    else:
+        refit = (
+            "the network holds out its usual share of the arriving arcs for validation: one descent"
+        )
     lines = [
         "",
         "## Descent assimilation",
         "",
         f"{d['n']} deployment descents released at 1.3 R_B (at rest in inertial space plus a "
         "1-3 cm/s inward manoeuvre within 20 deg of the centre), flown under the truth to "
-        "contact, each tracked as one arc of 40 samples at 14 s ending at contact, with the "
+        f"contact, each tracked as one arc of {tracked}, with the "
         "orbital arcs' noise. They arrive as a last stage after the six of the fixed order; "
-        "the models below are warm-refitted on all arcs from their stage-6 parameters (the "
-        "network holds out its usual share of the arriving arcs for validation: one "
-        "descent). First repetition: descents of "
+        "the models below are warm-refitted on all arcs from their stage-6 parameters "
+        f"({refit}). First repetition: descents of "
         f"{d['duration_s']['min']:.0f}-{d['duration_s']['max']:.0f} s, arcs spanning "
         f"{d['arc_radius_rb']['min']:.2f}-{d['arc_radius_rb']['max']:.2f} R_B, contact at "
         + ", ".join(f"{v:.2f}" for v in d["contact_radius_rb"])

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.arcs import Arcs
 from ..errors import PropagationError
-from .base import SolveResult
+from .base import Solver, SolveResult
 from .estimator import GravityEstimator, validation_split
 
 __all__ = ["StageRecord", "ContinualFit", "fit_continual"]
@@ -75,20 +75,31 @@ class ContinualFit:
         """Parameters of the last stage (None before the first)."""
         return self.records[-1].result.params if self.records else None
 
-    def add(self, new: Sequence[int]) -> StageRecord:
+    def add(
+        self, new: Sequence[int], *, validate: bool = True, solver: Solver | None = None
+    ) -> StageRecord:
         """Fit the next stage, which brings the arcs ``new`` (indices into ``arcs``). The
         returned record's result holds the stage's normal equations (n_params^2 per member),
-        which the next stage adds to; ``records`` drops them from older stages."""
+        which the next stage adds to; ``records`` drops them from older stages.
+
+        ``validate`` False: none of the new arcs is held out and the fit returns its last
+        iterate (no validation stop or choice); the arcs held out at earlier stages stay out
+        of training. ``solver`` replaces the estimator's (warm) solver for this stage."""
         estimator = self.estimator
         k = len(self.records)
         new = np.asarray(new, dtype=int)
-        if estimator.holdout_fraction > 0:
+        if validate and estimator.holdout_fraction > 0:
             _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
             self._held_out = np.union1d(self._held_out, new[val])
         self._seen = np.concatenate([self._seen, new])
         seen, held_out = self._seen, self._held_out
-        subset = self.arcs.subset(seen)
-        local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
+        # without validation the fit sees only its training arcs (so it has none to hold out)
+        fitted = seen if validate else seen[~np.isin(seen, held_out)]
+        subset = self.arcs.subset(fitted)
+        if validate:
+            local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
+        else:
+            local_val = np.zeros(0, dtype=int)
         theta = self.params
         warm = self.warm_start and theta is not None
         # the previous stage's training arcs keep their indices (arcs are appended), so its
@@ -96,14 +107,19 @@ class ContinualFit:
         previous = self.records[-1].result if warm else None
         try:
             estimator.fit(
-                subset, init=theta if warm else None, validation=local_val, reuse=previous
+                subset,
+                init=theta if warm else None,
+                validation=local_val,
+                reuse=previous,
+                solver=solver,
+                warm=warm,
             )
         except PropagationError:
             if not warm:
                 raise
             # the previous stage's model does not carry the new arcs: restart this stage
             warm = False
-            estimator.fit(subset, validation=local_val)
+            estimator.fit(subset, validation=local_val, solver=solver)
         record = StageRecord(k, seen.copy(), held_out.copy(), warm, estimator.result_)
         if self.records:
             # only the newest stage's normal equations are added to: drop the older ones

@@ -34,8 +34,13 @@ __all__ = [
     "release_states",
     "descend",
     "tracked_descents",
+    "DESCENT_SPANS",
     "miss_statistics",
 ]
+
+#: How a tracked descent's arc covers the fall: "end", its last samples at the tracking
+#: cadence, ending at contact; "whole", its samples spread from release to contact.
+DESCENT_SPANS = ("end", "whole")
 
 
 @dataclass(frozen=True)
@@ -115,6 +120,7 @@ def tracked_descents(
     *,
     seed: int = 0,
     max_draws: int | None = None,
+    span: str = "end",
 ) -> Arcs:
     """``count`` descents flown under ``truth`` and tracked as one arc each.
 
@@ -124,9 +130,11 @@ def tracked_descents(
     (``samples_per_arc - 1`` times ``cadence_s``) after release, is skipped and the next draw
     taken (at most ``max_draws``, default ``count + tracking.max_redraws``). ``tracking``
     (default :class:`~hamgrav.sim.tracking.TrackingConfig`) gives the orbital arcs'
-    samples per arc, cadence and noise. Each arc holds
-    ``samples_per_arc`` samples ``cadence_s`` [s] apart, the last at the contact time, observed
-    with the orbital arcs' noise (sigma_r = ``tracking.sigma_r_m`` [m] per position component,
+    samples per arc, cadence and noise. With ``span`` "end" each arc holds
+    ``samples_per_arc`` samples ``cadence_s`` [s] apart, the last at the contact time; with
+    "whole" it holds ``samples_per_arc`` samples evenly spaced from release to contact (the
+    whole fall, from the release radius down to the surface). Observed with the orbital arcs'
+    noise (sigma_r = ``tracking.sigma_r_m`` [m] per position component,
     sigma_v = omega sigma_r ``velocity_noise_ratio``), noise seeded by (``seed``, 1).
 
     Returns canonical :class:`Arcs` (trajectory kind "descent"); ``trajectory_info`` holds per
@@ -136,6 +144,8 @@ def tracked_descents(
     """
     if count < 1:
         raise InputError(f"count must be at least 1, got {count}")
+    if span not in DESCENT_SPANS:
+        raise InputError(f"span must be one of {', '.join(DESCENT_SPANS)}, got {span!r}")
     tracking = TrackingConfig() if tracking is None else tracking
     body = truth.body
     units = body.units
@@ -150,7 +160,10 @@ def tracked_descents(
         (td,) = descend(truth.model, [], state0[None], body, descents, tol=TRUTH_TOLERANCE)
         if not td.landed or td.time < offsets[-1]:
             continue
-        grid = td.time - offsets[::-1]
+        if span == "whole":
+            grid = np.linspace(0.0, td.time, tracking.samples_per_arc)
+        else:
+            grid = td.time - offsets[::-1]
         states, ok = propagate_scalar(truth.model, state0, grid, tol=TRUTH_TOLERANCE)
         if not ok or not np.all(np.isfinite(states)):
             continue
@@ -183,7 +196,11 @@ def tracked_descents(
         trajectory_kind=tuple("descent" for _ in kept),
         trajectory_info=info,
         **simulated_arcs_fields(truth, tracking.sigma_r_m, tracking.velocity_noise_ratio, seed),
-        config={"descents": count, "release_radius_rb": descents.release_radius_rb},
+        config={
+            "descents": count,
+            "release_radius_rb": descents.release_radius_rb,
+            "span": span,
+        },
     )
 
 
