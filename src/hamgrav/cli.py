@@ -238,10 +238,14 @@ def _command_line(words: list[str], options: dict) -> str:
     """The command that reproduces a run: ``words`` then every option that was given."""
     parts = ["hamgrav", *words]
     for name, value in options.items():
-        if value is None or value is False:
+        if value is None:
             continue
         flag = "-o" if name == "output" else "--" + name.replace("_", "-")
-        parts += [flag] if value is True else [flag, str(value)]
+        if value is False:
+            # a switch given off (its default is on): --no-<name>
+            parts.append("--no-" + name.replace("_", "-"))
+        else:
+            parts += [flag] if value is True else [flag, str(value)]
     return " ".join(parts)
 
 

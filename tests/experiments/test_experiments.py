@@ -380,7 +380,10 @@ def test_deep_tiny_without_the_later_parts(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    data = json.loads((out / "results.json").read_text())
+    # the command that reproduces the run names the switch turned off
+    assert " --no-d-optimal " in data["command"] and "--d-optimal" not in data["command"]
+    rep = data["repetitions"][0]
     assert "deep_bins_after_descents" not in rep and "d_optimal_picks" not in rep
     assert rep["orders"]["random"] == [] and "d-optimal" not in rep["orders"]
     assert not (out / "orders.png").exists() and not (out / "descents.png").exists()
