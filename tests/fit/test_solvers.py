@@ -106,19 +106,24 @@ def test_warm_start_converges_faster(sh_world, synthetic_truth):
     assert [s["stage"] for s in warm_fit.fitted_.stages] == [0, 1]
 
 
+def _two_member_network(truth, *, hidden: int, max_iter: int) -> GravityEstimator:
+    """A two-member network ensemble (one hidden layer) holding out a quarter of each stage."""
+    return GravityEstimator(
+        "network",
+        hidden=(hidden,),
+        members=2,
+        validation_fraction=0.25,
+        solver=LevenbergMarquardt(max_iter=max_iter),
+        body=truth.body,
+    )
+
+
 def test_a_warm_stage_forms_normal_equations_of_the_new_arcs_only(small_arcs, synthetic_truth):
     """A warm-started stage adds the new training arcs to the previous stage's normal
     equations at its returned parameters, for each member of an ensemble; the sums it starts
     from equal those formed from scratch."""
     stages = [np.arange(0, 5), np.arange(5, 9)]
-    est = GravityEstimator(
-        "network",
-        hidden=(8,),
-        members=2,
-        validation_fraction=0.25,
-        solver=LevenbergMarquardt(max_iter=3),
-        body=synthetic_truth.body,
-    )
+    est = _two_member_network(synthetic_truth, hidden=8, max_iter=3)
     run = ContinualFit(est, small_arcs)
     first = run.add(stages[0])
     starts = []
@@ -257,14 +262,7 @@ def test_a_stage_without_validation_trains_every_new_arc_but_no_earlier_hold_out
     """``add(new, validate=False)``: none of the new arcs is held out, the arcs held out at
     earlier stages are not trained on, the fit has no validation arcs (its last iterate is
     returned) and the given solver runs."""
-    est = GravityEstimator(
-        "network",
-        hidden=(4,),
-        members=2,
-        validation_fraction=0.25,
-        solver=LevenbergMarquardt(max_iter=2),
-        body=synthetic_truth.body,
-    )
+    est = _two_member_network(synthetic_truth, hidden=4, max_iter=2)
     run = ContinualFit(est, small_arcs)
     first = run.add(np.arange(0, 5))
     assert len(first.validation) == 1
