@@ -309,6 +309,11 @@ def test_deep_tiny(tmp_path):
     assert desc["n"] == 2 and all(r < 1.0 for r in desc["contact_radius_rb"])
     assert set(desc["fits"]) == set(rep["deep_bins_after_descents"]) == {"sh3", "network-best"}
     assert all(f["n_arcs"] == 10 and f["warm_started"] for f in desc["fits"].values())
+    # each refit says what it left of no correction's cost: the network's on its hold-out
+    # (one descent), SH's (no hold-out) on its training arcs
+    assert desc["fits"]["network-best"]["checked_on"] == "validation arcs"
+    assert desc["fits"]["sh3"]["checked_on"] == "training arcs"
+    assert all(0 < f["relative_cost"] < 1e6 for f in desc["fits"].values())
     for by_bin in rep["deep_bins_after_descents"].values():
         assert list(by_bin) == labels and all(0.0 < v < 1e6 for v in by_bin.values())
     after = rep["descents_summary"]["network-best"]
@@ -364,6 +369,8 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     fits = descents["fits"]
     assert fits["network-best"]["iterations"] == 9 and fits["network-best"]["warm_started"]
     assert fits["sh2"]["warm_started"]
+    # no descent is held out: the refits are judged on their training arcs
+    assert all(f["checked_on"] == "training arcs" for f in fits.values())
     assert set(rep["deep_bins_after_descents"]) == {"sh2", "network-best"}
     readme = (out / "README.md").read_text()
     assert "40 samples spread evenly from release to contact" in readme

@@ -104,6 +104,38 @@ def test_warm_start_converges_faster(sh_world, synthetic_truth):
     assert warm[1].result.iterations < cold[1].result.iterations
     assert warm[1].result.cost == pytest.approx(cold[1].result.cost, rel=1e-6)
     assert [s["stage"] for s in warm_fit.fitted_.stages] == [0, 1]
+    # every stage says how much of the no-correction cost it leaves (no hold-out here)
+    for record, stage in zip(warm, warm_fit.fitted_.stages, strict=True):
+        assert record.checked_on == stage["checked_on"] == "training arcs"
+        assert 0 < record.relative_cost == stage["relative_cost"] < 1e-3
+
+
+def test_a_stage_the_previous_model_cannot_propagate_restarts_and_says_so(
+    sh_world, synthetic_truth, monkeypatch
+):
+    _, _, arcs = sh_world
+    rng = np.random.default_rng(1)
+    noisy = replace(arcs, states=arcs.states + rng.normal(size=arcs.states.shape) * 1e-6)
+    est = GravityEstimator(
+        "sh", degree=4, solver=LevenbergMarquardt(rtol=1e-9), body=synthetic_truth.body
+    )
+    run = ContinualFit(est, noisy)
+    run.add(np.arange(0, 5))
+    fit = est.fit
+    starts = []
+
+    def fit_unless_warm(subset, *, init=None, **kw):
+        starts.append(init)
+        if init is not None:  # as when the new arcs dive where the old field is singular
+            raise PropagationError("arcs [6] did not propagate to the end")
+        return fit(subset, init=init, **kw)
+
+    monkeypatch.setattr(est, "fit", fit_unless_warm)
+    second = run.add(np.arange(5, 9))
+    assert starts[0] is not None and starts[1] is None  # tried warm, then from scratch
+    assert not second.warm_started and second.n_arcs == 9
+    assert second.result.outcome.ok and 0 < second.relative_cost < 1e-3
+    assert not est.fitted_.stages[1]["warm_started"]
 
 
 def _two_member_network(truth, *, hidden: int, max_iter: int) -> GravityEstimator:

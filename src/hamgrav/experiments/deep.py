@@ -447,12 +447,15 @@ def _stage_errors(model, records, truth: Truth, shells: dict) -> list[float | No
 
 
 def _fit_record(record) -> dict:
-    """Plain-data summary of a stage's fit."""
+    """Plain-data summary of a stage's fit (``relative_cost``: see
+    :class:`~hamgrav.fit.continual.StageRecord`)."""
     return {
         "iterations": record.result.iterations,
         "wall_s": round(record.result.wall_s, 2),
         "outcome": record.result.outcome.value,
         "warm_started": record.warm_started,
+        "relative_cost": _value(record.relative_cost) if record.relative_cost is not None else None,
+        "checked_on": record.checked_on,
     }
 
 

@@ -421,10 +421,28 @@ def _descents_section(report: dict, net: str) -> list[str]:
     fits = first["descents"].get("fits", {})
     lines += ["", "Refits on the descents (first repetition):", ""]
     for m, f in fits.items():
-        lines.append(
+        line = (
             f"- {m}: {f['n_arcs']} arcs, {f['outcome']}, {f['iterations']} iterations, "
             f"{f['wall_s']:.1f} s"
         )
+        if f.get("warm_started") is False:
+            line += ", restarted from its initialisation"
+        if f.get("relative_cost") is not None:
+            line += f", cost on the {f['checked_on']} {f['relative_cost']:.3g} of no correction's"
+        lines.append(line)
+    restarts = {
+        m: sum(not r["descents"]["fits"][m]["warm_started"] for r in reps if "descents" in r)
+        for m in fits
+    }
+    if any(restarts.values()):
+        lines += [
+            "",
+            "A model whose last orbital fit does not propagate the descent arcs (they reach deep "
+            "inside the Brillouin sphere, where an SH series diverges) is refitted from its "
+            "initialisation on all the arcs instead of warm-started; so it was in "
+            + ", ".join(f"{m}: {n} of {len(reps)}" for m, n in restarts.items())
+            + " repetitions.",
+        ]
     return lines
 
 

@@ -27,13 +27,18 @@ __all__ = ["StageRecord", "ContinualFit", "fit_continual"]
 @dataclass(frozen=True, eq=False)
 class StageRecord:
     """One stage of a continual fit: ``arcs`` (global indices) seen so far, the validation
-    arcs among them (global indices), whether the fit was warm-started, and its result."""
+    arcs among them (global indices), whether the fit was warm-started, its result, and
+    ``relative_cost``: the stage's cost on its validation arcs (its training arcs when it has
+    none, ``checked_on`` says which) over the cost of no correction on them
+    (:mod:`hamgrav.fit.diagnostics`; None without learnable parameters)."""
 
     stage: int
     arcs: np.ndarray
     validation: np.ndarray
     warm_started: bool
     result: SolveResult
+    relative_cost: float | None = None
+    checked_on: str | None = None
 
     @property
     def n_arcs(self) -> int:
@@ -48,6 +53,8 @@ class StageRecord:
             "n_validation": int(len(self.validation)),
             "warm_started": self.warm_started,
             **self.result.summary(),
+            "relative_cost": self.relative_cost,
+            "checked_on": self.checked_on,
         }
 
 
@@ -120,7 +127,18 @@ class ContinualFit:
             # the previous stage's model does not carry the new arcs: restart this stage
             warm = False
             estimator.fit(subset, validation=local_val, solver=solver)
-        record = StageRecord(k, seen.copy(), held_out.copy(), warm, estimator.result_)
+        relative = estimator.diagnostics_.get("relative_cost")
+        if relative is not None and not np.isfinite(relative):
+            relative = None  # no correction costs nothing on these arcs: nothing to compare
+        record = StageRecord(
+            k,
+            seen.copy(),
+            held_out.copy(),
+            warm,
+            estimator.result_,
+            relative,
+            estimator.diagnostics_.get("checked_on"),
+        )
         if self.records:
             # only the newest stage's normal equations are added to: drop the older ones
             # (n_params^2 per member and stage)
