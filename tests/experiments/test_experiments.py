@@ -125,6 +125,7 @@ def test_continual_tiny(tmp_path):
             assert set(stage[mode]) == {"network-best", "sh2"}
             for values in stage[mode].values():
                 assert {"r1.05", "r1.2", "r1.5", "h30m", "iterations", "wall_s"} <= set(values)
+                assert values["relative_cost"] > 0  # of no correction's cost
     assert rep["stages"][1]["warm"]["sh2"]["warm_started"]
     assert not rep["stages"][1]["scratch"]["sh2"]["warm_started"]
     summary = rep["summary"]["sh2"]

@@ -100,6 +100,7 @@ class ContinualExperiment(Experiment):
                         "wall_s": r.result.wall_s,
                         "outcome": r.result.outcome.value,
                         "warm_started": r.warm_started,
+                        "relative_cost": r.relative_cost,
                     }
                 ctx.say(
                     f"{mode} {name}: r1.2 by stage "
