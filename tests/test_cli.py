@@ -293,6 +293,8 @@ def test_fit_init_continues_a_model_as_a_stage(small_arcs, tmp_path):
     assert [s["stage"] for s in stages] == [0, 1]
     assert [s["n_arcs"] for s in stages] == [5, 9]
     assert stages[1]["warm_started"] and stages[0]["arcs_file"] == str(first)
+    # each stage says what it left of no correction's cost (SH: no hold-out)
+    assert all(s["checked_on"] == "training arcs" and s["relative_cost"] < 1 for s in stages)
     other = runner.invoke(
         app, ["fit", str(everything), "--model", "sh:2", "--init", str(stage1), "-o", str(stage2)]
     )

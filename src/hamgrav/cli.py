@@ -448,7 +448,12 @@ MAX_HIDDEN = 1024
 def _stage_of(solver: dict) -> dict:
     """The stage record of a fit from its model file's solver entry."""
     keys = ("n_arcs", "n_validation", "solver", "outcome", "iterations", "cost", "wall_s")
-    return {k: solver.get(k) for k in keys} | {"arcs_file": solver.get("arcs_file")}
+    diagnostics = solver.get("diagnostics") or {}
+    return (
+        {k: solver.get(k) for k in keys}
+        | {k: diagnostics.get(k) for k in ("relative_cost", "checked_on")}
+        | {"arcs_file": solver.get("arcs_file")}
+    )
 
 
 @_command(app)

@@ -20,6 +20,7 @@ from hamgrav.experiments.deep import (
     join_arcs,
     random_orders,
 )
+from hamgrav.experiments.deep_report import _descents_section
 from hamgrav.fit.design import choose_from_plans, greedy_d_optimal, orbit_plans
 from hamgrav.fit.estimator import GravityEstimator
 from hamgrav.sim.descent import DescentConfig, tracked_descents
@@ -229,3 +230,46 @@ def test_joined_arcs_number_the_descents_after_the_orbits(campaign, synthetic_tr
     assert info["inclination_deg"].shape == (8,) and np.isnan(info["inclination_deg"][6:]).all()
     assert np.array_equal(info["initial_state"][6:], descents.trajectory_info["initial_state"])
     assert np.isnan(info["dv_m_s"][:6]).all()
+
+
+def _descent_report(fits_by_rep: list[dict]) -> dict:
+    """A minimal deep report whose repetitions hold the given descent refit records."""
+    descents = {
+        "n": 2,
+        "duration_s": {"min": 100.0, "max": 200.0},
+        "arc_radius_rb": {"min": 0.3, "max": 0.9},
+        "contact_radius_rb": [0.3, 0.5],
+    }
+    reps = [
+        {"deep_bin_points": {"0.25-0.45": 3}, "descents": {**descents, "fits": fits}}
+        for fits in fits_by_rep
+    ]
+    reps.append({"deep_bin_points": {"0.25-0.45": 3}})  # a repetition without descents
+    aggregate = {"deep_bins": {}, "deep_bins_after_descents": {}, "descents_summary": {}}
+    return {"repetitions": reps, "aggregate": aggregate, "config": {}}
+
+
+def test_the_descent_report_says_which_refits_restarted_and_what_they_left():
+    def fit(warm, **more):
+        record = {"n_arcs": 10, "outcome": "converged", "iterations": 3, "wall_s": 1.0}
+        return {**record, "warm_started": warm, **more}
+
+    restarted = fit(False, relative_cost=0.3, checked_on="training arcs")
+    report = _descent_report(
+        [
+            {"sh8": restarted, "network-best": fit(True)},
+            {"sh8": fit(True), "network-best": fit(True)},
+        ]
+    )
+    text = "\n".join(_descents_section(report, "network-best"))
+    assert (
+        "- sh8: 10 arcs, converged, 3 iterations, 1.0 s, restarted from its initialisation, "
+        "cost on the training arcs 0.3 of no correction's" in text
+    )
+    # a record written before relative costs were kept reads as before
+    assert "- network-best: 10 arcs, converged, 3 iterations, 1.0 s\n" in text + "\n"
+    # counted over the repetitions that have descents
+    assert "so it was in sh8: 1 of 2, network-best: 0 of 2 repetitions." in text
+    # no restart anywhere: no such paragraph
+    quiet = _descent_report([{"sh8": fit(True)}])
+    assert "refitted from its initialisation" not in "\n".join(_descents_section(quiet, "x"))

@@ -135,6 +135,9 @@ def test_a_stage_the_previous_model_cannot_propagate_restarts_and_says_so(
     assert starts[0] is not None and starts[1] is None  # tried warm, then from scratch
     assert not second.warm_started and second.n_arcs == 9
     assert second.result.outcome.ok and 0 < second.relative_cost < 1e-3
+    # the restarted fit's own diagnostics, not the failed warm attempt's or stage 1's
+    assert second.relative_cost == est.diagnostics_["relative_cost"]
+    assert second.relative_cost != run.records[0].relative_cost
     assert not est.fitted_.stages[1]["warm_started"]
 
 

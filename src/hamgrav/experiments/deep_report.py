@@ -430,9 +430,9 @@ def _descents_section(report: dict, net: str) -> list[str]:
         if f.get("relative_cost") is not None:
             line += f", cost on the {f['checked_on']} {f['relative_cost']:.3g} of no correction's"
         lines.append(line)
+    with_descents = [r for r in reps if "descents" in r]
     restarts = {
-        m: sum(not r["descents"]["fits"][m]["warm_started"] for r in reps if "descents" in r)
-        for m in fits
+        m: sum(not r["descents"]["fits"][m]["warm_started"] for r in with_descents) for m in fits
     }
     if any(restarts.values()):
         lines += [
@@ -440,7 +440,7 @@ def _descents_section(report: dict, net: str) -> list[str]:
             "A model whose last orbital fit does not propagate the descent arcs (they reach deep "
             "inside the Brillouin sphere, where an SH series diverges) is refitted from its "
             "initialisation on all the arcs instead of warm-started; so it was in "
-            + ", ".join(f"{m}: {n} of {len(reps)}" for m, n in restarts.items())
+            + ", ".join(f"{m}: {n} of {len(with_descents)}" for m, n in restarts.items())
             + " repetitions.",
         ]
     return lines
