@@ -250,14 +250,19 @@ def test_anomalies_tiny(tmp_path):
     assert (out / "maps.png").stat().st_size > 1000
 
 
+#: A tiny deep campaign: 4 orbits in 2 stages, a 4-unit network, short fits.
+TINY_DEEP = [
+    "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
+    "--stages", "2", "--hidden", "4", "--lm-iterations", "3", "--warm-iterations", "2",
+    "--altitude-m", "30", "--descents", "2",
+]  # fmt: skip
+
+
 def test_deep_tiny(tmp_path):
     out = tmp_path / "deep"
     args = [
-        "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
-        "--stages", "2", "--sh-degrees", "2,3", "--map-degrees", "2,3", "--hidden", "4",
-        "--lm-iterations", "3", "--warm-iterations", "2", "--altitude-m", "30",
-        "--map-points", "31", "--descents", "2", "--descent-degrees", "3",
-        "--random-orders", "2", "-o", str(out),
+        *TINY_DEEP, "--sh-degrees", "2,3", "--map-degrees", "2,3", "--map-points", "31",
+        "--descent-degrees", "3", "--random-orders", "2", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -352,11 +357,8 @@ def test_deep_tiny(tmp_path):
 def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     out = tmp_path / "deep"
     args = [
-        "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
-        "--stages", "2", "--sh-degrees", "2", "--map-degrees", "2", "--hidden", "4",
-        "--lm-iterations", "3", "--warm-iterations", "2", "--altitude-m", "30",
-        "--map-points", "11", "--descents", "2", "--descent-degrees", "2",
-        "--descent-span", "whole", "--descent-iterations", "3",
+        *TINY_DEEP, "--sh-degrees", "2", "--map-degrees", "2", "--map-points", "11",
+        "--descent-degrees", "2", "--descent-span", "whole", "--descent-iterations", "3",
         "--random-orders", "0", "--no-d-optimal", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
