@@ -330,6 +330,7 @@ class _OneParameterProblem:
 
     def __init__(self, validation_cost):
         self.validation_cost = validation_cost
+        self.normals_at = []  # the iterates whose normal equations were formed
 
     def objective(self, theta, idx=None):
         return 0.5 * float(theta[0] - 1.0) ** 2
@@ -340,6 +341,7 @@ class _OneParameterProblem:
         return self.objective(theta)
 
     def arc_normals(self, theta, idx=None, known=None):
+        self.normals_at.append(float(theta[0]))
         r = float(theta[0] - 1.0)
         return ArcNormals(
             theta.copy(), np.array([0]), "", 0.5 * r * r, np.array([r]), np.array([[1.0]])
@@ -349,10 +351,10 @@ class _OneParameterProblem:
         return cost, atr, ata
 
 
-def _patient_fit(validation_cost, patience):
+def _patient_fit(validation_cost, patience, problem=None):
     # large initial damping: short steps from 0 towards 1 (theta about 0.09, 0.30, 0.63, ...)
     solver = LevenbergMarquardt(lambda0=10.0, max_iter=8, rtol=0.0, patience=patience)
-    problem = _OneParameterProblem(validation_cost)
+    problem = problem or _OneParameterProblem(validation_cost)
     return solver.solve(problem, np.zeros(1), train=np.array([0]), validation=np.array([1]))
 
 
@@ -373,8 +375,25 @@ def test_patience_counts_accepted_steps_without_a_validation_gain_from_the_start
 
 def test_patience_stops_after_that_many_steps_without_a_gain():
     # the first step lowers the validation cost, the next ones raise it
-    result = _patient_fit(lambda t: (t - 0.1) ** 2, 2)
+    problem = _OneParameterProblem(lambda t: (t - 0.1) ** 2)
+    result = _patient_fit(None, 2, problem)
     assert result.iterations == 3
     assert result.best_iteration == 1
     assert "validation cost not lowered by 2 accepted steps" in result.message
     np.testing.assert_allclose(result.params, [1 / 11])
+
+
+def test_a_fit_stopping_at_an_iterate_it_does_not_return_forms_no_normals_there():
+    problem = _OneParameterProblem(lambda t: (t - 0.1) ** 2)
+    result = _patient_fit(None, 2, problem)
+    # the start, the best (first) step and the second, which the third step needs; the third
+    # ends the fit without a gain and is not returned
+    np.testing.assert_allclose(problem.normals_at, [0.0, 1 / 11, *problem.normals_at[2:]])
+    assert len(problem.normals_at) == 3
+    assert result.normals.params[0] == result.params[0]
+    # at the iteration cap the last iterate's are formed only when it is the one returned
+    capped = _OneParameterProblem(lambda t: (t - 0.9) ** 2)
+    solver = LevenbergMarquardt(lambda0=10.0, max_iter=3, rtol=0.0)
+    result = solver.solve(capped, np.zeros(1), train=np.array([0]), validation=np.array([1]))
+    assert result.best_iteration == 3
+    assert len(capped.normals_at) == 4 and capped.normals_at[-1] == result.params[0]

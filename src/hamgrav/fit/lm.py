@@ -103,17 +103,32 @@ class LevenbergMarquardt(Solver):
             trial = theta + step
             try:
                 trial_cost = reg_cost(problem.objective(trial, train), trial)
-                accepted = trial_cost < cost
-                if accepted:
-                    trial_normals = problem.arc_normals(trial, train)
-                    _, trial_atr, trial_ata = problem.regularise(
-                        trial, trial_normals.cost, trial_normals.atr, trial_normals.ata
-                    )
             except PropagationError:
-                trial_cost, accepted = math.inf, False
+                trial_cost = math.inf
+            accepted = trial_cost < cost
+            if accepted:
+                rel = (cost - trial_cost) / max(cost, 1e-300)
+                val = problem.cost(trial, validation) if has_val else math.inf
+                gains = val < best[0]
+                ends = (
+                    rel < self.rtol
+                    or it == self.max_iter
+                    or (has_val and self.patience is not None and stale + 1 >= self.patience)
+                )
+                # the normal equations at the new iterate serve the next step or, when the
+                # fit stops here, the returned iterate: a fit that stops at an iterate it
+                # does not return (a validation fit's last step without a gain) skips them
+                trial_atr = trial_ata = trial_normals = None
+                if not (has_val and ends and not gains):
+                    try:
+                        trial_normals = problem.arc_normals(trial, train)
+                        _, trial_atr, trial_ata = problem.regularise(
+                            trial, trial_normals.cost, trial_normals.atr, trial_normals.ata
+                        )
+                    except PropagationError:
+                        accepted = False
             if accepted:
                 n_accepted += 1
-                rel = (cost - trial_cost) / max(cost, 1e-300)
                 theta, cost, normals = trial, trial_cost, trial_normals
                 lam = max(lam / self.lambda_down, self.lambda_floor)
             else:
@@ -123,9 +138,8 @@ class LevenbergMarquardt(Solver):
             history["accepted"].append(accepted)
             history["time_s"].append(time.perf_counter() - start)
             if has_val:
-                val = problem.cost(theta, validation) if accepted else history["validation"][-1]
-                history["validation"].append(val)
-                if val < best[0]:
+                history["validation"].append(val if accepted else history["validation"][-1])
+                if accepted and gains:
                     best, stale = (val, theta.copy(), it, normals), 0
                 elif accepted:
                     stale += 1
