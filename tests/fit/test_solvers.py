@@ -397,3 +397,24 @@ def test_a_fit_stopping_at_an_iterate_it_does_not_return_forms_no_normals_there(
     result = solver.solve(capped, np.zeros(1), train=np.array([0]), validation=np.array([1]))
     assert result.best_iteration == 3
     assert len(capped.normals_at) == 4 and capped.normals_at[-1] == result.params[0]
+
+
+def test_a_gated_fit_takes_only_steps_that_lower_the_validation_cost():
+    # validation cost lowest at 0.12: the second full step (to about 0.30) overshoots it
+    def valley(t):
+        return (t - 0.12) ** 2
+
+    plain = _patient_fit(valley, 2)
+    np.testing.assert_allclose(plain.params, [1 / 11])  # the first step is the best it finds
+    problem = _OneParameterProblem(valley)
+    solver = LevenbergMarquardt(
+        lambda0=10.0, max_iter=8, rtol=0.0, patience=2, validation_gate=True
+    )
+    gated = solver.solve(problem, np.zeros(1), train=np.array([0]), validation=np.array([1]))
+    # from 1/11 at lambda 10/3 the step to about 0.30 is rejected; at lambda 100/3 the
+    # shorter one lands at 1/11 + (10/11) / (1 + 100/3) = 0.1174, nearer the valley
+    np.testing.assert_allclose(gated.params, [1 / 11 + (10 / 11) / (1 + 100 / 3)])
+    assert gated.history["accepted"][1:4] == [True, False, True]
+    # every iterate is the best so far, and normals are formed at those only
+    np.testing.assert_allclose(problem.normals_at[:3], [0.0, 1 / 11, gated.params[0]])
+    assert gated.best_iteration == max(i for i, a in enumerate(gated.history["accepted"]) if a)

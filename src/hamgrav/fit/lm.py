@@ -51,6 +51,10 @@ class LevenbergMarquardt(Solver):
     saturated tanh units, diag ~ 1e-50) are damped too. With validation arcs and
     ``patience``, the fit stops after ``patience`` accepted steps in a row that do not lower
     the best validation cost (rejected trials leave the iterate unchanged and do not count).
+    ``validation_gate`` (with validation arcs): a step must lower the best validation cost
+    as well as the training cost to be accepted; one that lowers only the training cost is
+    rejected (lambda *= ``lambda_up``) and counts towards the patience. Every iterate is then
+    the best so far, and only those have their normal equations formed.
     """
 
     lambda0: float = 1e-6
@@ -63,6 +67,7 @@ class LevenbergMarquardt(Solver):
     kaula_alpha: float = 0.0
     damping_floor: float = 0.0
     patience: int | None = None
+    validation_gate: bool = False
 
     name = "levenberg-marquardt"
 
@@ -93,7 +98,7 @@ class LevenbergMarquardt(Solver):
             history["validation"] = [problem.cost(theta, validation)]
             best = (history["validation"][0], theta.copy(), 0, normals)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
-        stale = 0  # accepted steps since the best validation cost
+        stale = 0  # accepted (or gated) steps since the best validation cost
         for it in range(1, self.max_iter + 1):
             scaling = np.diag(ata)
             if self.damping_floor > 0:
@@ -101,6 +106,7 @@ class LevenbergMarquardt(Solver):
             lhs = ata + lam * np.diag(scaling) + np.diag(kaula)
             step = _solve_spd(lhs, -(atr + kaula * theta))
             trial = theta + step
+            gated = False
             try:
                 trial_cost = reg_cost(problem.objective(trial, train), trial)
             except PropagationError:
@@ -110,6 +116,11 @@ class LevenbergMarquardt(Solver):
                 rel = (cost - trial_cost) / max(cost, 1e-300)
                 val = problem.cost(trial, validation) if has_val else math.inf
                 gains = val < best[0]
+                # a gated fit takes only steps that lower the validation cost too; the others
+                # are rejected like a rise of the training cost, at the price of a propagation
+                gated = self.validation_gate and has_val and not gains
+                accepted = not gated
+            if accepted:
                 ends = (
                     rel < self.rtol
                     or it == self.max_iter
@@ -141,7 +152,7 @@ class LevenbergMarquardt(Solver):
                 history["validation"].append(val if accepted else history["validation"][-1])
                 if accepted and gains:
                     best, stale = (val, theta.copy(), it, normals), 0
-                elif accepted:
+                elif accepted or gated:
                     stale += 1
             if callback is not None:
                 callback(it, {k: v[-1] for k, v in history.items()})
