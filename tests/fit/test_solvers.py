@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hamgrav.core.model import Model
+from hamgrav.core.model import Model, cache_info
 from hamgrav.core.problem import ArcNormals, ArcProblem
 from hamgrav.core.terms import (
     NeuralPotential,
@@ -418,3 +418,38 @@ def test_a_gated_fit_takes_only_steps_that_lower_the_validation_cost():
     # every iterate is the best so far, and normals are formed at those only
     np.testing.assert_allclose(problem.normals_at[:3], [0.0, 1 / 11, gated.params[0]])
     assert gated.best_iteration == max(i for i, a in enumerate(gated.history["accepted"]) if a)
+
+
+def test_a_gated_fit_takes_steps_on_the_training_cost_until_its_first_validation_gain():
+    # the validation cost rises over the first two steps, then falls: gating those steps
+    # would leave the fit at its start
+    def rises_then_falls(t):
+        return 1.0 + t - 2.0 * t * t
+
+    solver = LevenbergMarquardt(
+        lambda0=10.0, max_iter=8, rtol=0.0, patience=3, validation_gate=True
+    )
+    problem = _OneParameterProblem(rises_then_falls)
+    result = solver.solve(problem, np.zeros(1), train=np.array([0]), validation=np.array([1]))
+    assert result.history["accepted"][1:3] == [True, True]
+    assert result.best_iteration > 2 and result.params[0] > 0.6
+
+
+def test_after_compile_a_fit_compiles_nothing(small_arcs, synthetic_truth):
+    # an ensemble with the harmonic penalty: ensemble, member and sensitivity integrators and
+    # the Laplacian function (a hidden size no other test uses: nothing is cached yet)
+    est = GravityEstimator(
+        "network",
+        hidden=(3, 2),
+        members=2,
+        harmonic=1e-5,
+        validation_fraction=0.25,
+        solver=LevenbergMarquardt(max_iter=2),
+        body=synthetic_truth.body,
+    )
+    before = cache_info()
+    est.compile(small_arcs)
+    compiled = cache_info()
+    assert sum(compiled.values()) > sum(before.values())
+    est.fit(small_arcs)
+    assert cache_info() == compiled

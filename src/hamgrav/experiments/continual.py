@@ -10,6 +10,7 @@ warm and from scratch; validation arcs are drawn once per arriving stage and nev
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -50,6 +51,11 @@ class ContinualExperimentConfig(CampaignConfig):
         NETWORK_WARM_SOLVER.patience,
         "Accepted steps without a lower validation cost after which a warm stage stops.",
     )
+    warm_gate: bool = option(
+        NETWORK_WARM_SOLVER.validation_gate,
+        "Warm stages: after a member's first validation gain, accept only steps that lower "
+        "the validation cost too (the LM solver's validation_gate).",
+    )
     sh_degree: int = option(8, "SH degree.")
 
 
@@ -81,12 +87,18 @@ class ContinualExperiment(Experiment):
                     NETWORK_WARM_SOLVER,
                     max_iter=config.warm_iterations,
                     patience=config.warm_patience,
+                    validation_gate=config.warm_gate,
                 ),
             ),
             f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
         }
         counts = np.cumsum([len(a) for a in arriving])
         stages = [{"n_arcs": int(n)} for n in counts]
+        start = time.perf_counter()
+        for settings in models.values():
+            # the first fit of a process would otherwise also time heyoka's compilation
+            GravityEstimator(body=truth.body, seed=ctx.seed, **settings).compile(arcs)
+        ctx.say(f"integrators compiled in {time.perf_counter() - start:.1f} s (not timed)")
         for mode in ("warm", "scratch"):
             for k in range(len(groups)):
                 stages[k][mode] = {}

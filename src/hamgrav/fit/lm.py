@@ -51,10 +51,12 @@ class LevenbergMarquardt(Solver):
     saturated tanh units, diag ~ 1e-50) are damped too. With validation arcs and
     ``patience``, the fit stops after ``patience`` accepted steps in a row that do not lower
     the best validation cost (rejected trials leave the iterate unchanged and do not count).
-    ``validation_gate`` (with validation arcs): a step must lower the best validation cost
-    as well as the training cost to be accepted; one that lowers only the training cost is
-    rejected (lambda *= ``lambda_up``) and counts towards the patience. Every iterate is then
-    the best so far, and only those have their normal equations formed.
+    ``validation_gate`` (with validation arcs): once an accepted step has lowered the
+    validation cost, a step must lower the best validation cost as well as the training cost
+    to be accepted; one that lowers only the training cost is rejected (lambda *=
+    ``lambda_up``) and counts towards the patience. From the first gain on every iterate is
+    the best so far, and only those have their normal equations formed. Before it, steps are
+    taken on the training cost alone (a warm start may have to leave its basin first).
     """
 
     lambda0: float = 1e-6
@@ -116,9 +118,10 @@ class LevenbergMarquardt(Solver):
                 rel = (cost - trial_cost) / max(cost, 1e-300)
                 val = problem.cost(trial, validation) if has_val else math.inf
                 gains = val < best[0]
-                # a gated fit takes only steps that lower the validation cost too; the others
-                # are rejected like a rise of the training cost, at the price of a propagation
-                gated = self.validation_gate and has_val and not gains
+                # once a gated fit has lowered the validation cost, it takes only steps that
+                # lower it further; the others are rejected like a rise of the training cost,
+                # at the price of a propagation instead of the normal equations
+                gated = self.validation_gate and has_val and not gains and best[2] > 0
                 accepted = not gated
             if accepted:
                 ends = (
