@@ -84,7 +84,8 @@ NETWORK_BEST_HARMONIC = 1e-5
 #: gains found at step 4 were lost: one draw's warm fit stayed at r1.2 0.117 where the fit from
 #: scratch reached 0.079 (results/continual-itokawa, patience 4: 0.069). Counting the
 #: patience only from a member's first gain also fixes that draw, but its members without a
-#: gain run all 10 iterations: warm / scratch wall 0.59 over the 8 draws (0.54 at 4).
+#: gain run all 10 iterations: warm / scratch wall 0.59 over the 8 draws (0.54 at 4 in the
+#: same run; 0.50 since the normal equations of an unreturned last step are skipped).
 NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=4)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).
