@@ -7,6 +7,7 @@ import pytest
 from typer.testing import CliRunner
 
 from hamgrav.cli import app
+from hamgrav.fit.continual import fit_continual
 
 runner = CliRunner()
 
@@ -109,14 +110,26 @@ def test_experiment_option_errors(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
-def test_continual_tiny(tmp_path):
+def test_continual_tiny(tmp_path, monkeypatch):
+    from hamgrav.experiments import continual
+
+    warm_solvers = []
+
+    def spy(estimator, *args, **kwargs):
+        warm_solvers.append(estimator.warm_solver)
+        return fit_continual(estimator, *args, **kwargs)
+
+    monkeypatch.setattr(continual, "fit_continual", spy)
     out = tmp_path / "continual"
     args = [
         "experiment", "continual", *TINY_CAMPAIGN, "--orbits", "4", "--hidden", "4",
-        "--stages", "2", "--sh-degree", "2", "-o", str(out),
+        "--stages", "2", "--sh-degree", "2", "--warm-gate", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    # the network's warm stages run the gated warm solver (SH has none)
+    gates = [s.validation_gate for s in warm_solvers if s is not None]
+    assert gates == [True, True]
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
     assert [s["n_arcs"] for s in rep["stages"]] == [4, 8]
