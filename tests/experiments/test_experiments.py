@@ -123,14 +123,16 @@ def test_continual_tiny(tmp_path, monkeypatch):
     out = tmp_path / "continual"
     args = [
         "experiment", "continual", *TINY_CAMPAIGN, "--orbits", "4", "--hidden", "4",
-        "--stages", "2", "--sh-degree", "2", "--warm-gate", "-o", str(out),
+        "--stages", "2", "--sh-degree", "2", "--no-warm-gate", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    # the network's warm stages run the gated warm solver (SH has none)
+    # the network's warm stages run the warm solver without its gate (on by default; SH
+    # has no warm solver), and the reproducing command says so
     gates = [s.validation_gate for s in warm_solvers if s is not None]
-    assert gates == [True, True]
+    assert gates == [False, False]
     data = json.loads((out / "results.json").read_text())
+    assert " --no-warm-gate " in data["command"]
     rep = data["repetitions"][0]
     assert [s["n_arcs"] for s in rep["stages"]] == [4, 8]
     for stage in rep["stages"]:
@@ -372,11 +374,15 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     args = [
         *TINY_DEEP, "--sh-degrees", "2", "--map-degrees", "2", "--map-points", "11",
         "--descent-degrees", "2", "--descent-span", "whole", "--descent-iterations", "3",
-        "--random-orders", "0", "--no-d-optimal", "-o", str(out),
+        "--random-orders", "0", "--no-d-optimal", "--no-warm-gate", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    data = json.loads((out / "results.json").read_text())
+    rep = data["repetitions"][0]
+    # the warm stages ran without the validation gate (on by default), and the command says so
+    assert rep["fits"]["network-best"]["validation_gate"] is False
+    assert " --no-warm-gate " in data["command"]
     descents = rep["descents"]
     # the arcs start at release and end at contact
     assert descents["arc_start_radius_rb"] == [1.3, 1.3]

@@ -13,7 +13,13 @@ from ..bodies.interiors import INTERIORS, TRUTH_FRAMES, Truth
 from ..core.arcs import Arcs
 from ..core.fields import field_errors
 from ..errors import InputError
-from ..fit.estimator import NETWORK_BEST_HARMONIC, NETWORK_BEST_SOLVER, GravityEstimator, preset
+from ..fit.estimator import (
+    NETWORK_BEST_HARMONIC,
+    NETWORK_BEST_SOLVER,
+    NETWORK_WARM_SOLVER,
+    GravityEstimator,
+    preset,
+)
 from ..sim.campaign import Campaign, run_campaign
 from ..sim.tracking import TrackingConfig, orbit_grid
 from .config import ExperimentConfig, option
@@ -137,6 +143,16 @@ def network_best(hidden, lm_iterations: int, *, harmonic: float, **overrides) ->
 def lm_iterations_option(help: str = "LM iteration cap of each network-best member."):
     """The ``lm_iterations`` option of an experiment config: network-best's own cap by default."""
     return option(NETWORK_BEST_SOLVER.max_iter, help)
+
+
+def warm_gate_option():
+    """The ``warm_gate`` option of an experiment config with warm-started network stages:
+    the validation gate of network-best's warm solver (on by default)."""
+    return option(
+        NETWORK_WARM_SOLVER.validation_gate,
+        "Warm stages: after a member's first validation gain, accept only steps that lower "
+        "the validation cost too (the LM solver's validation_gate).",
+    )
 
 
 def harmonic_option(row: str = "network-best"):

@@ -1,7 +1,8 @@
 """Continual learning: the campaign arriving in stages, each stage's fit warm-started from the
 previous one, against fitting all arcs so far from scratch at every stage. Warm network stages
 use the preset's warm solver, :data:`~hamgrav.fit.estimator.NETWORK_WARM_SOLVER` (at most 10
-iterations per member, stopping after 4 accepted steps that do not lower the validation cost).
+iterations per member, stopping after 4 accepted steps that do not lower the validation cost;
+after a member's first validation gain, only steps that lower the validation cost too).
 
 The 112 arcs of the descent campaign arrive in ``stages`` stages of whole orbits (orbit grid
 order); the network (the ``network-best`` configuration) and SH 8 are fitted at every stage,
@@ -25,6 +26,7 @@ from .common import (
     network_best,
     sets_for,
     simulate,
+    warm_gate_option,
 )
 from .config import option
 from .continual_report import continual_figure, continual_readme
@@ -51,11 +53,7 @@ class ContinualExperimentConfig(CampaignConfig):
         NETWORK_WARM_SOLVER.patience,
         "Accepted steps without a lower validation cost after which a warm stage stops.",
     )
-    warm_gate: bool = option(
-        NETWORK_WARM_SOLVER.validation_gate,
-        "Warm stages: after a member's first validation gain, accept only steps that lower "
-        "the validation cost too (the LM solver's validation_gate).",
-    )
+    warm_gate: bool = warm_gate_option()
     sh_degree: int = option(8, "SH degree.")
 
 

@@ -71,6 +71,7 @@ from .common import (
     network_best,
     sets_for,
     simulate,
+    warm_gate_option,
 )
 from .config import option
 from .deep_report import (
@@ -148,6 +149,7 @@ class DeepExperimentConfig(CampaignConfig):
         NETWORK_WARM_SOLVER.max_iter,
         "LM iteration cap of each network member at warm-started stages.",
     )
+    warm_gate: bool = warm_gate_option()
     altitude_m: float = option(300.0, "Altitude of the surface-following evaluation set [m].")
     shells_rb: tuple[float, ...] = option(
         (1.2, 1.3, 1.4, 1.5, 1.6, 1.7),
@@ -588,7 +590,9 @@ class DeepExperiment(Experiment):
             lap("descents_simulate")
         arriving = [all_arcs.arcs_of(g) for g in groups]
         best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic)
-        best["warm_solver"] = replace(best["warm_solver"], max_iter=config.warm_iterations)
+        best["warm_solver"] = replace(
+            best["warm_solver"], max_iter=config.warm_iterations, validation_gate=config.warm_gate
+        )
         rows = {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}
         rows[NETWORK] = best
         refit = (
