@@ -283,6 +283,8 @@ def test_deep_tiny(tmp_path):
     assert result.exit_code == 0, result.output
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
+    # network-best's warm stages gate their steps on validation by default
+    assert rep["fits"]["network-best"]["validation_gate"] is True
     models = {"sh2", "sh3", "network-best"}
     # the tracked samples: all of them, ordered quartiles, none below the redraw floor
     radii = rep["radius_rb"]

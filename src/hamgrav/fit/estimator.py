@@ -76,20 +76,21 @@ NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=20, rtol=1e-9, lambda0=1e-2, d
 #: results/descent-itokawa-x8); on 67P it keeps the network from bending below the arcs
 #: (deep-region error 1.13 -> 0.47, seed 0).
 NETWORK_BEST_HARMONIC = 1e-5
-#: Warm-started continual stages start near the optimum: at most 10 iterations per member,
-#: stopping after 4 accepted steps that do not lower the validation cost. Per-member traces of
-#: four continual draws (seeds 0, 2, 4, 6): a warm member's first validation gain comes at
-#: accepted step 1-4 when it matters (to 0.57-0.76 of its start; gains first found at steps
-#: 5 and 7 were below 3 %), and a third of the members never gain in 10 iterations. At 3 the
-#: gains found at step 4 were lost: one draw's warm fit stayed at r1.2 0.117 where the fit from
-#: scratch reached 0.079 (patience 4: 0.069). After a member's first validation gain, steps
-#: that lower only the training cost are rejected (``validation_gate``): such a step then
-#: costs a propagation instead of the normal equations. On the eight Itokawa continual draws
-#: this cut the warm / scratch wall from 0.50 (0.41-0.62) to 0.40 (0.36-0.54) with the final
-#: warm / scratch r1.2 at 0.79 (0.35-1.12) against 0.80 (0.25-0.98); on the eight 67P deep
-#: draws the repetition's wall fell from 720 to 556 s (median) with the network's errors
-#: unchanged (exterior 0.065 against 0.063, deepest bin 0.450 against 0.449). Gating from
-#: the first step left one continual draw at its stage-1 iterate (r1.2 0.160).
+#: Warm-started continual stages start near the optimum: at most 10 iterations per member, stopping
+#: after 4 accepted steps that do not lower the validation cost. Per-member traces of four continual
+#: draws (seeds 0, 2, 4, 6): a warm member's first validation gain comes at accepted step 1-4 when
+#: it matters (to 0.57-0.76 of its start; gains first found at steps 5 and 7 were below 3 %), and a
+#: third of the members never gain in 10 iterations. At 3 the gains found at step 4 were lost: one
+#: draw's warm fit stayed at r1.2 0.117 where the fit from scratch reached 0.079 (patience 4: 0.069,
+#: results/continual-itokawa-no-gate). After a member's first validation gain, steps that lower only
+#: the training cost are rejected (``validation_gate``): such a step then costs a propagation
+#: instead of the normal equations. On the eight Itokawa continual draws this cut the warm / scratch
+#: wall from 0.50 (0.41-0.62) to 0.41 (0.35-0.56) with the final warm / scratch r1.2 at 0.79
+#: (0.35-1.12) against 0.80 (0.25-0.98) (results/continual-itokawa against
+#: results/continual-itokawa-no-gate); on the eight 67P deep draws the repetition's wall fell from
+#: 720 to 556 s (median) with the network's errors unchanged (exterior 0.065 against 0.063, deepest
+#: bin 0.450 against 0.449). Gating from the first step left one continual draw's warm fit at r1.2
+#: 0.160 from stage 2 on (scratch 0.079).
 NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=4, validation_gate=True)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).
