@@ -465,6 +465,38 @@ def test_swarm_tiny(tmp_path):
     assert (out / "swarm.png").stat().st_size > 1000
 
 
+def test_swarm_tiny_paper_network(tmp_path, monkeypatch):
+    from hamgrav.fit.estimator import PRESETS
+
+    # the paper's protocol with a few Adam steps: the rows, not the fit's quality
+    monkeypatch.setitem(PRESETS["network"], "adam_steps", 12)
+    out = tmp_path / "swarm"
+    args = [
+        "experiment", "swarm", "--body", "synthetic", "--n-mascons", "60", "--particles", "3",
+        "--arcs", "5", "--samples-per-arc", "10", "--window-s", "2400", "--sh-degrees", "2",
+        "--gravity-only-degree", "2", "--hidden", "4", "--lm-iterations", "2",
+        "--paper-network", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert " --paper-network " in data["command"]
+    rep = data["repetitions"][0]
+    assert set(rep["field_error"]["joint"]) == {"sh2", "network", "network-adam"}
+    assert set(rep["field_error"]["gravity-only"]) == {"sh2", "network", "network-adam"}
+    fits = rep["fits"]
+    assert fits["joint"]["network-adam"]["solver"] == "adam"
+    assert fits["gravity-only"]["network-adam"]["solver"] == "adam"
+    n_free = fits["gravity-only"]["network-adam"]["n_params"]
+    assert fits["joint"]["network-adam"]["n_params"] == n_free + 3
+    # the joint Adam fit trained (its training cost fell) and reports one A/m per particle
+    joint = fits["joint"]["network-adam"]
+    assert joint["cost"] < joint["initial_cost"]
+    assert len(rep["area_to_mass"]["network-adam"]) == 3
+    readme = (out / "README.md").read_text()
+    assert "paper-protocol network gravity-only" in readme
+
+
 def test_swarm_option_errors(tmp_path):
     args = ["experiment", "swarm", "--window-s", "100", "-o", str(tmp_path / "x")]
     result = runner.invoke(app, args)
