@@ -11,7 +11,9 @@ equations:
   as per-trajectory parameters estimated together with gravity (SRP in the model, only its
   coefficients unknown);
 - gravity-only: the same SRP-active arcs with no SRP term in the model: SH of degree
-  ``gravity_only_degree`` and the same network.
+  ``gravity_only_degree`` and the same network;
+- with ``paper_network``, also the paper's protocol network (preset ``network``: Adam, no
+  harmonic penalty, the same hidden layers) both ways, as rows ``network-adam``.
 
 Reported: per-particle A/m relative errors (median), field errors on the ``altitude_m``
 surface-following set and on shells, the draws rejected by the simulation, and the wall time
