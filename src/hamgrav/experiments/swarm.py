@@ -338,9 +338,43 @@ def swarm_readme(report: dict) -> list[str]:
         count = _count(values if tested is None else tested, test)
         return f"| {name} | {paper} | {med} | {rng} | {count} ({target}) |"
 
-    better = [f["joint"]["network"][h] < f["gravity-only"]["network"][h] for f in fe]
-
     pct = "{:.2%}"
+
+    def network_rows(model: str, label: str, below: str) -> list[str]:
+        """The three rows of a network model: joint A/m, joint and gravity-only 30 m error."""
+        joint = [f["joint"][model][h] for f in fe]
+        alone = [f["gravity-only"][model][h] for f in fe]
+        return [
+            row(
+                f"A/m median relative error, {label} joint",
+                "3.5 %",
+                [a.get(model) for a in am],
+                pct,
+                "<= 3.5 %",
+                lambda v: v is not None and v <= 0.035,
+            ),
+            row(
+                f"{cfg['altitude_m']:g} m field error, {label} joint",
+                "0.33",
+                joint,
+                "{:.3f}",
+                below,
+                bool,
+                [j < g for j, g in zip(joint, alone, strict=True)],
+            ),
+            row(
+                f"{cfg['altitude_m']:g} m field error, {label} gravity-only",
+                "0.48",
+                alone,
+                "{:.3f}",
+                "< 0.5",
+                lambda v: v < 0.5,
+            ),
+        ]
+
+    net_am, net_joint, net_alone = network_rows(
+        "network", "network", "below the network gravity-only"
+    )
     lines = [
         f"Truth: {cfg['body']} at constant density ({cfg['n_mascons']} mascons) with solar "
         f"radiation pressure on every particle. {first['n_particles']} particles, "
@@ -361,14 +395,7 @@ def swarm_readme(report: dict) -> list[str]:
             "<= 0.6 %",
             lambda v: v is not None and v <= 0.006,
         ),
-        row(
-            "A/m median relative error, network joint",
-            "3.5 %",
-            [a.get("network") for a in am],
-            pct,
-            "<= 3.5 %",
-            lambda v: v is not None and v <= 0.035,
-        ),
+        net_am,
         row(
             f"{cfg['altitude_m']:g} m field error, SH {go[2:]} gravity-only",
             "3.5",
@@ -377,55 +404,11 @@ def swarm_readme(report: dict) -> list[str]:
             "> 1: worse than no correction",
             lambda v: v > 1.0,
         ),
-        row(
-            f"{cfg['altitude_m']:g} m field error, network joint",
-            "0.33",
-            [f["joint"]["network"][h] for f in fe],
-            "{:.3f}",
-            "below the network gravity-only",
-            bool,
-            better,
-        ),
-        row(
-            f"{cfg['altitude_m']:g} m field error, network gravity-only",
-            "0.48",
-            [f["gravity-only"]["network"][h] for f in fe],
-            "{:.3f}",
-            "< 0.5",
-            lambda v: v < 0.5,
-        ),
+        net_joint,
+        net_alone,
     ]
     if PAPER_NETWORK in fe[0]["joint"]:
-        adam_better = [
-            f["joint"][PAPER_NETWORK][h] < f["gravity-only"][PAPER_NETWORK][h] for f in fe
-        ]
-        lines += [
-            row(
-                "A/m median relative error, paper-protocol network joint",
-                "3.5 %",
-                [a.get(PAPER_NETWORK) for a in am],
-                pct,
-                "<= 3.5 %",
-                lambda v: v is not None and v <= 0.035,
-            ),
-            row(
-                f"{cfg['altitude_m']:g} m field error, paper-protocol network joint",
-                "0.33",
-                [f["joint"][PAPER_NETWORK][h] for f in fe],
-                "{:.3f}",
-                "below its gravity-only",
-                bool,
-                adam_better,
-            ),
-            row(
-                f"{cfg['altitude_m']:g} m field error, paper-protocol network gravity-only",
-                "0.48",
-                [f["gravity-only"][PAPER_NETWORK][h] for f in fe],
-                "{:.3f}",
-                "< 0.5",
-                lambda v: v < 0.5,
-            ),
-        ]
+        lines += network_rows(PAPER_NETWORK, "paper-protocol network", "below its gravity-only")
     lines += [
         "",
         "The network rows are the network-best "
