@@ -412,12 +412,35 @@ def test_a_gated_fit_takes_only_steps_that_lower_the_validation_cost():
     )
     gated = solver.solve(problem, np.zeros(1), train=np.array([0]), validation=np.array([1]))
     # from 1/11 at lambda 10/3 the step to about 0.30 is rejected; at lambda 100/3 the
-    # shorter one lands at 1/11 + (10/11) / (1 + 100/3) = 0.1174, nearer the valley
-    np.testing.assert_allclose(gated.params, [1 / 11 + (10 / 11) / (1 + 100 / 3)])
+    # shorter one lands at 1/11 + (10/11) / (1 + 100/3) = 0.1174, nearer the valley, and
+    # the later ones nearer still
     assert gated.history["accepted"][1:4] == [True, False, True]
+    second = 1 / 11 + (10 / 11) / (1 + 100 / 3)
+    assert abs(gated.params[0] - 0.12) < abs(second - 0.12)
     # every iterate is the best so far, and normals are formed at those only
-    np.testing.assert_allclose(problem.normals_at[:3], [0.0, 1 / 11, gated.params[0]])
+    np.testing.assert_allclose(problem.normals_at[:3], [0.0, 1 / 11, second])
+    assert problem.normals_at == sorted(problem.normals_at)
     assert gated.best_iteration == max(i for i, a in enumerate(gated.history["accepted"]) if a)
+
+
+def test_gated_trials_do_not_use_up_the_patience():
+    # validation cost lowest at 0.095, just past the first step (1/11): from there the
+    # trials at lambda 10/3 (to 0.30) and 100/3 (to 0.117) overshoot it and are gated; the
+    # one at 1000/3 lands at 0.0936, nearer. Counted as stale steps, the two gated trials
+    # would end a fit of patience 2 at 1/11.
+    def valley(t):
+        return (t - 0.095) ** 2
+
+    solver = LevenbergMarquardt(
+        lambda0=10.0, max_iter=8, rtol=0.0, patience=2, validation_gate=True
+    )
+    gated = solver.solve(
+        _OneParameterProblem(valley), np.zeros(1), train=np.array([0]), validation=np.array([1])
+    )
+    assert gated.history["accepted"][1:5] == [True, False, False, True]
+    assert gated.iterations == 8
+    third = 1 / 11 + (10 / 11) / (1 + 1000 / 3)
+    assert abs(gated.params[0] - 0.095) <= abs(third - 0.095) < abs(1 / 11 - 0.095)
 
 
 def test_a_gated_fit_takes_steps_on_the_training_cost_until_its_first_validation_gain():

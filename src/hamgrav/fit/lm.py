@@ -53,10 +53,12 @@ class LevenbergMarquardt(Solver):
     the best validation cost (rejected trials leave the iterate unchanged and do not count).
     ``validation_gate`` (with validation arcs): once an accepted step has lowered the
     validation cost, a step must lower the best validation cost as well as the training cost
-    to be accepted; one that lowers only the training cost is rejected (lambda *=
-    ``lambda_up``) and counts towards the patience. From the first gain on every iterate is
-    the best so far, and only those have their normal equations formed. Before it, steps are
-    taken on the training cost alone (a warm start may have to leave its basin first).
+    to be accepted; one that lowers only the training cost is rejected like any other trial
+    (lambda *= ``lambda_up``; it does not count towards the patience), so the next trial is a
+    shorter, more gradient-like step from the same iterate. From the first gain on every
+    iterate is the best so far, and only those have their normal equations formed. Before
+    it, steps are taken on the training cost alone (a warm start may have to leave its basin
+    first).
     """
 
     lambda0: float = 1e-6
@@ -155,7 +157,7 @@ class LevenbergMarquardt(Solver):
                 history["validation"].append(val if accepted else history["validation"][-1])
                 if accepted and gains:
                     best, stale = (val, theta.copy(), it, normals), 0
-                elif accepted or gated:
+                elif accepted:
                     stale += 1
             if callback is not None:
                 callback(it, {k: v[-1] for k, v in history.items()})
