@@ -1,5 +1,6 @@
 """The estimator: the one fit path (noise weighting, shape prior, Kaula scan, known part)."""
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -239,13 +240,27 @@ def test_a_warm_member_that_keeps_its_block_does_not_speak_for_the_ensemble(
         body=synthetic_truth.body, seed=3, solver=LevenbergMarquardt(max_iter=1), **settings
     )
     first.fit(small_arcs.subset(np.arange(6)), validation=held_out[:1])
-    stuck, free = LevenbergMarquardt(max_iter=2, lambda0=1e20), LevenbergMarquardt(max_iter=6)
+    stuck, free = LevenbergMarquardt(max_iter=2), LevenbergMarquardt(max_iter=6)
     calls = []
 
+    class NoTrialLowersTheCost:
+        # the first member's problem: every trial step raises the training cost (a heavily
+        # damped real step can be accepted on a rounding-level decrease)
+        def __init__(self, problem):
+            self._problem = problem
+
+        def __getattr__(self, name):
+            return getattr(self._problem, name)
+
+        def objective(self, theta, idx=None):
+            return math.inf
+
     class FirstMemberStuck(LevenbergMarquardt):
-        def _iterate(self, *args):
+        def _iterate(self, problem, *args):
             calls.append(1)
-            return (stuck if len(calls) == 1 else free)._iterate(*args)
+            if len(calls) == 1:
+                return stuck._iterate(NoTrialLowersTheCost(problem), *args)
+            return free._iterate(problem, *args)
 
     warm = GravityEstimator(
         body=synthetic_truth.body, seed=3, solver=FirstMemberStuck(), **settings
