@@ -1,4 +1,5 @@
 import math
+import multiprocessing
 
 import heyoka as hy
 import numpy as np
@@ -89,3 +90,32 @@ def test_mascon_term_uses_the_truth_potential(synthetic_truth, rng):
     pts = rng.normal(size=(10, 3)) * 2.0
     v, _ = evaluate_field(model, np.zeros(0), pts, which="known")
     assert np.allclose(v, mascon_potential(synthetic_truth.mascons, pts), rtol=1e-13)
+
+
+def _propagate_into(pipe, model, states, times):
+    pipe.send(propagate_batch(model, states, times, threads=2).states)
+
+
+@pytest.mark.skipif(
+    "fork" not in multiprocessing.get_all_start_methods(), reason="needs the fork start method"
+)
+def test_a_forked_child_propagates_on_threads_of_its_own():
+    """The propagation threads are started once per process: a child forked after the parent
+    used them (it inherits the pool but not its threads) must start its own, not wait."""
+    model = Model((PointMass(),))
+    radius = 2.0
+    state0 = [radius, 0.0, 0.0, 0.0, radius**-0.5, 0.0]
+    states = np.tile(state0, (8, 1))  # two SIMD batches of 4: both threads work
+    times = np.tile(np.linspace(0.0, 1.0, 5), (8, 1))
+    parent = propagate_batch(model, states, times, threads=2).states
+    receive, send = multiprocessing.Pipe(duplex=False)
+    child = multiprocessing.get_context("fork").Process(
+        target=_propagate_into, args=(send, model, states, times)
+    )
+    child.start()
+    got = receive.recv() if receive.poll(60) else None
+    child.join(10)
+    if child.is_alive():
+        child.kill()
+    assert got is not None, "the forked child's propagation did not finish within 60 s"
+    assert np.array_equal(got, parent)

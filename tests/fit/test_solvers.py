@@ -19,7 +19,7 @@ from hamgrav.fit.continual import ContinualFit, fit_continual
 from hamgrav.fit.estimator import GravityEstimator
 from hamgrav.fit.estimator import validation_split as split_validation
 from hamgrav.fit.kaula import scan_kaula
-from hamgrav.fit.lm import LevenbergMarquardt, kaula_diagonal
+from hamgrav.fit.lm import LevenbergMarquardt, _solve_spd, kaula_diagonal
 
 
 @pytest.fixture(scope="module")
@@ -476,3 +476,15 @@ def test_after_compile_a_fit_compiles_nothing(small_arcs, synthetic_truth):
     assert sum(compiled.values()) > sum(before.values())
     est.fit(small_arcs)
     assert cache_info() == compiled
+
+
+def test_lm_step_solve_falls_back_to_least_squares_on_a_singular_matrix():
+    """The damped normal matrix is solved by Cholesky; one that is not positive definite (a
+    direction no arc sees, undamped) gets the minimum-norm least-squares step instead."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(40, 6))
+    spd = a.T @ a
+    rhs = rng.normal(size=6)
+    assert np.allclose(_solve_spd(spd, rhs), np.linalg.solve(spd, rhs), rtol=1e-10)
+    singular = np.diag([2.0, 0.0, 1.0])
+    assert np.allclose(_solve_spd(singular, np.array([4.0, 0.0, 3.0])), [2.0, 0.0, 3.0])

@@ -16,6 +16,7 @@ and the integrators come from the one compile cache of :mod:`hamgrav.core.model`
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -68,6 +69,28 @@ class BatchPropagation:
     sensitivities: np.ndarray | None
     ok: np.ndarray
     exceeded_steps: np.ndarray
+
+
+#: Propagation threads of this process, by pool size, started once: starting them on every
+#: call took about 3 % of a network fit (two thread starts per call, each waiting for the GIL).
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def _forget_pools() -> None:
+    # a forked child inherits the pools but not their threads
+    _POOLS.clear()
+
+
+os.register_at_fork(after_in_child=_forget_pools)
+
+
+def _thread_pool(n_threads: int) -> ThreadPoolExecutor:
+    """The process's pool of ``n_threads`` propagation threads."""
+    with _POOLS_LOCK:
+        if n_threads not in _POOLS:
+            _POOLS[n_threads] = ThreadPoolExecutor(n_threads, "hamgrav-propagate")
+        return _POOLS[n_threads]
 
 
 def propagate_batch(
@@ -142,10 +165,10 @@ def propagate_batch(
         if n_threads == 1:
             work(integrators[0], 0)
         else:
-            with ThreadPoolExecutor(n_threads) as pool:
-                futures = [pool.submit(work, integrators[w], w) for w in range(n_threads)]
-                for f in futures:
-                    f.result()
+            pool = _thread_pool(n_threads)
+            futures = [pool.submit(work, integrators[w], w) for w in range(n_threads)]
+            for f in futures:
+                f.result()
     states[~ok] = np.nan
     if jac is not None:
         jac[~ok] = np.nan

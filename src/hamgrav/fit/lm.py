@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,12 +27,13 @@ def kaula_diagonal(problem: ArcProblem) -> np.ndarray:
 
 
 def _solve_spd(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    # Cholesky directly: the same LAPACK factorisation as scipy.linalg.solve(assume_a="pos")
+    # without its condition estimate (a third of an LM trial's solve time on 721 parameters).
+    # Near-singular normal matrices are expected (weakly observed directions); the damping
+    # and the accept/reject test handle them
     try:
-        with warnings.catch_warnings():
-            # near-singular normal matrices are expected (weakly observed directions); the
-            # damping and the accept/reject test handle them
-            warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-            return scipy.linalg.solve(matrix, rhs, assume_a="pos")
+        factor = scipy.linalg.cho_factor(matrix)
+        return scipy.linalg.cho_solve(factor, rhs)
     except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
         return np.linalg.lstsq(matrix, rhs, rcond=None)[0]
 
