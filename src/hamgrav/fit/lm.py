@@ -102,7 +102,7 @@ class LevenbergMarquardt(Solver):
             history["validation"] = [problem.cost(theta, validation)]
             best = (history["validation"][0], theta.copy(), 0, normals)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
-        stale = 0  # accepted (or gated) steps since the best validation cost
+        stale = 0  # accepted steps since the best validation cost
         for it in range(1, self.max_iter + 1):
             scaling = np.diag(ata)
             if self.damping_floor > 0:
@@ -110,7 +110,6 @@ class LevenbergMarquardt(Solver):
             lhs = ata + lam * np.diag(scaling) + np.diag(kaula)
             step = _solve_spd(lhs, -(atr + kaula * theta))
             trial = theta + step
-            gated = False
             try:
                 trial_cost = reg_cost(problem.objective(trial, train), trial)
             except PropagationError:
@@ -123,8 +122,7 @@ class LevenbergMarquardt(Solver):
                 # once a gated fit has lowered the validation cost, it takes only steps that
                 # lower it further; the others are rejected like a rise of the training cost,
                 # at the price of a propagation instead of the normal equations
-                gated = self.validation_gate and has_val and not gains and best[2] > 0
-                accepted = not gated
+                accepted = not (self.validation_gate and has_val and not gains and best[2] > 0)
             if accepted:
                 ends = (
                     rel < self.rtol
