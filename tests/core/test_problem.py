@@ -43,7 +43,7 @@ def arcs(small_arcs):
 
 def test_network_sensitivities(arcs):
     nn = NeuralPotential((16, 16))
-    problem = ArcProblem(Model((PointMass(),), nn), arcs, tol=TOL)
+    problem = ArcProblem(Model((PointMass(),), nn), arcs, tol=TOL, sensitivity_tol=TOL)
     theta = nn.initial_params(3)
     theta[nn.n_weights :] = 0.05  # non-zero biases exercise every path
     _check_fd(problem, theta, [0, 17, 100, 300, nn.last_bias_index()])
@@ -59,7 +59,7 @@ def test_last_bias_has_gradient(arcs):
 def test_sh_sensitivities(arcs, synthetic_truth):
     radius = synthetic_truth.body.brillouin_radius
     sh = SphericalHarmonics(4, radius)
-    problem = ArcProblem(Model((PointMass(),), sh), arcs, tol=TOL)
+    problem = ArcProblem(Model((PointMass(),), sh), arcs, tol=TOL, sensitivity_tol=TOL)
     theta = sh_coefficients_of_mascons(synthetic_truth.mascons, 4, radius)
     _check_fd(problem, theta, range(sh.n_params))
 
@@ -68,7 +68,7 @@ def test_shape_prior_plus_network_sensitivities(arcs, synthetic_truth):
     prior, report = fit_shape_prior(synthetic_truth.body, 40, samples=20_000)
     assert report["perturbing_error_r1.05"] < 0.05
     nn = NeuralPotential((16,))
-    problem = ArcProblem(Model((MasconTerm(prior),), nn), arcs, tol=TOL)
+    problem = ArcProblem(Model((MasconTerm(prior),), nn), arcs, tol=TOL, sensitivity_tol=TOL)
     _check_fd(problem, nn.initial_params(1), [0, 30, nn.n_params - 1])
 
 
@@ -77,7 +77,7 @@ def test_srp_coefficient_sensitivities(arcs, synthetic_truth):
     srp = SolarRadiationPressure(SolarRadiationPressure.pressure_for(units), 20.0)
     nn = NeuralPotential((16,))
     model = Model((PointMass(),), nn, (srp,))
-    problem = ArcProblem(model, arcs, estimate_trajectory_params=True, tol=TOL)
+    problem = ArcProblem(model, arcs, estimate_trajectory_params=True, tol=TOL, sensitivity_tol=TOL)
     theta = np.concatenate([nn.initial_params(2), [0.3, 0.8, 1.5]])
     assert problem.n_params == nn.n_params + 3
     jac = problem.predict(theta, sensitivities=True).jacobian
@@ -108,6 +108,24 @@ def test_normal_equations_agree_with_design(arcs):
     assert np.allclose(atr, a.T @ r, rtol=1e-12, atol=1e-20)
     assert np.allclose(ata, a.T @ a, rtol=1e-12, atol=1e-20)
     assert problem.gradient(theta)[1] == pytest.approx(atr, rel=1e-12)
+
+
+def test_normal_equations_at_the_sensitivity_tolerance_agree_with_tight_ones(arcs):
+    """The propagations that carry sensitivities run looser than the states' (order 13 rather
+    than 15); the normal equations they give must still agree with tight ones far below what
+    an LM step needs."""
+    nn = NeuralPotential((16, 16))
+    theta = nn.initial_params(1)
+    model = Model((PointMass(),), nn)
+    loose = ArcProblem(model, arcs)
+    assert loose.sensitivity_tol > loose.tol
+    cost, atr, ata = loose.normal_equations(theta)
+    cost_t, atr_t, ata_t = ArcProblem(model, arcs, sensitivity_tol=TOL).normal_equations(theta)
+    assert not np.array_equal(ata, ata_t)  # the looser tolerance is the one in use
+    assert cost == pytest.approx(cost_t, rel=1e-10)
+    assert np.linalg.norm(atr - atr_t) <= 1e-9 * np.linalg.norm(atr_t)
+    assert np.linalg.norm(ata - ata_t) <= 1e-9 * np.linalg.norm(ata_t)
+    assert loose.cost(theta) == pytest.approx(cost_t, rel=1e-10)
 
 
 def test_arc_normals_add_to_known_sums_of_the_same_arcs(arcs):
@@ -242,7 +260,7 @@ def test_any_per_trajectory_term_is_estimated(arcs, synthetic_truth):
     srp = SolarRadiationPressure(SolarRadiationPressure.pressure_for(units), 20.0)
     sh = SphericalHarmonics(2, synthetic_truth.body.brillouin_radius)
     model = Model((PointMass(),), sh, (srp, _ConstantForce()))
-    problem = ArcProblem(model, arcs, estimate_trajectory_params=True, tol=TOL)
+    problem = ArcProblem(model, arcs, estimate_trajectory_params=True, tol=TOL, sensitivity_tol=TOL)
     assert model.n_trajectory_params == 4 and problem.n_params == sh.n_params + 3 * 4
     rng = np.random.default_rng(5)
     per_traj = np.column_stack([[0.2, 0.6, 1.1], rng.normal(size=(3, 3)) * 1e-4])

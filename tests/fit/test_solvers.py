@@ -36,7 +36,9 @@ def sh_world(small_arcs, synthetic_truth):
 
 def test_lm_recovers_sh_truth_from_noiseless_arcs(sh_world):
     model, c_true, arcs = sh_world
-    result = LevenbergMarquardt(rtol=1e-12, max_iter=20).solve(ArcProblem(model, arcs, tol=1e-15))
+    result = LevenbergMarquardt(rtol=1e-12, max_iter=20).solve(
+        ArcProblem(model, arcs, tol=1e-15, sensitivity_tol=1e-15)
+    )
     assert np.abs(result.params - c_true).max() < 1e-8 * np.abs(c_true).max()
     assert result.history["accepted"][1]
 

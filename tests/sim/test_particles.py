@@ -132,7 +132,9 @@ def test_area_to_mass_sensitivities_on_particle_arcs(swarm_arcs, synthetic_truth
     srp = solar_radiation_pressure(synthetic_truth.body.units, SMALL)
     sh = SphericalHarmonics(2, synthetic_truth.body.brillouin_radius)
     model = Model((PointMass(),), sh, (srp,))
-    problem = ArcProblem(model, swarm_arcs, estimate_trajectory_params=True, tol=1e-15)
+    problem = ArcProblem(
+        model, swarm_arcs, estimate_trajectory_params=True, tol=1e-15, sensitivity_tol=1e-15
+    )
     theta = np.concatenate(
         [np.full(sh.n_params, 1e-3), swarm_arcs.trajectory_info["area_to_mass_m2_kg"]]
     )

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import PropagationError
 from .arcs import Arcs
-from .model import DEFAULT_FIT_TOLERANCE, Model
+from .model import DEFAULT_FIT_TOLERANCE, DEFAULT_SENSITIVITY_TOLERANCE, Model
 from .propagation import propagate_batch
 
 __all__ = ["ArcNormals", "ArcProblem", "Prediction"]
@@ -79,7 +79,9 @@ class ArcProblem:
             covariance S whitens the residuals, see
             :func:`hamgrav.fit.estimator.noise_whitening`); None = the paper's unweighted
             canonical residuals.
-        tol: integrator tolerance.
+        tol: integrator tolerance of propagations of states alone (costs, residuals).
+        sensitivity_tol: integrator tolerance of propagations that carry the sensitivities
+            (:meth:`design`, the normal equations).
         threads: worker threads (default: the number of CPUs).
         max_steps: Taylor steps allowed per batch of arcs before a trial is declared stiff.
         regulariser: optional object with ``terms(theta) -> (rows (k,), jacobian (k,
@@ -95,6 +97,7 @@ class ArcProblem:
         trajectory_values: np.ndarray | None = None,
         whitening: np.ndarray | None = None,
         tol: float = DEFAULT_FIT_TOLERANCE,
+        sensitivity_tol: float = DEFAULT_SENSITIVITY_TOLERANCE,
         threads: int | None = None,
         max_steps: int = 500,
         regulariser=None,
@@ -103,6 +106,7 @@ class ArcProblem:
         self.regulariser = regulariser
         self.arcs = arcs
         self.tol = tol
+        self.sensitivity_tol = sensitivity_tol
         self.n_trajectories = len(arcs.trajectory_kind)
         n_tp = model.n_trajectory_params
         if estimate_trajectory_params and n_tp == 0:
@@ -168,7 +172,8 @@ class ArcProblem:
         return np.arange(self.arcs.n_arcs) if arc_indices is None else np.asarray(arc_indices)
 
     def predict(self, theta, arc_indices=None, *, sensitivities: bool = False) -> Prediction:
-        """Predicted states (and sensitivities) of the selected arcs at their sample times.
+        """Predicted states (and sensitivities) of the selected arcs at their sample times; with
+        ``sensitivities`` the propagation runs at ``sensitivity_tol``, otherwise at ``tol``.
 
         Raises :class:`~hamgrav.errors.PropagationError` when an arc does not propagate
         (non-finite, or stiff: more than ``max_steps`` Taylor steps)."""
@@ -182,7 +187,7 @@ class ArcProblem:
             self.arcs.times[idx],
             self._runtime_params(theta, idx),
             sensitivities=sensitivities,
-            tol=self.tol,
+            tol=self.sensitivity_tol if sensitivities else self.tol,
             threads=self.threads,
             max_steps=self.max_steps,
         )
@@ -269,7 +274,13 @@ class ArcProblem:
         if key not in self._fingerprints:
             h = hashlib.sha256(self.arcs.subset(idx).digest().encode())
             h.update(json.dumps(self.model.describe(), sort_keys=True, default=repr).encode())
-            layout = (self.n_params, self.estimate_trajectory_params, self.tol, self.max_steps)
+            layout = (
+                self.n_params,
+                self.estimate_trajectory_params,
+                self.tol,
+                self.sensitivity_tol,
+                self.max_steps,
+            )
             h.update(repr(layout).encode())
             for array in (self.whitening, self.trajectory_values):
                 h.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
