@@ -3,7 +3,8 @@
 Campaign geometry of the paper's Itokawa descent experiment: 16 orbits (1.2-2.0 R_B,
 10-80 deg), 7 arcs of 40 samples at 14 s. Compilation is timed apart (first use of the
 compiled variational integrator); propagation is the best of ``--repeat`` runs over all arcs,
-on all cores (SIMD batches of arcs over threads), at the fit tolerance; "AtA+Atr" is the
+on all cores (SIMD batches of arcs over threads), at the tolerance of the fit's propagations
+that carry sensitivities (``--tol``, default the fit's); "AtA+Atr" is the
 whole normal-equation assembly (propagation included).
 
     python bench/sensitivities.py [--body itokawa] [--json]
@@ -21,7 +22,7 @@ import numpy as np
 
 from hamgrav.bodies.catalogue import load_body
 from hamgrav.bodies.interiors import build_truth
-from hamgrav.core.model import DEFAULT_FIT_TOLERANCE, Model, compiled_integrators
+from hamgrav.core.model import DEFAULT_SENSITIVITY_TOLERANCE, Model, compiled_integrators
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.terms import NeuralPotential, PointMass, SphericalHarmonics
 from hamgrav.sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
@@ -32,7 +33,7 @@ def main() -> None:
     parser.add_argument("--body", default="itokawa")
     parser.add_argument("--interior", default="head-tail")
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--tol", type=float, default=DEFAULT_FIT_TOLERANCE)
+    parser.add_argument("--tol", type=float, default=DEFAULT_SENSITIVITY_TOLERANCE)
     parser.add_argument("--json", action="store_true", help="one JSON object per model")
     args = parser.parse_args()
 
@@ -54,7 +55,7 @@ def main() -> None:
         t = time.perf_counter()
         compiled_integrators(model, variational=True, tol=args.tol)
         compile_s = time.perf_counter() - t
-        problem = ArcProblem(model, arcs, tol=args.tol)
+        problem = ArcProblem(model, arcs, sensitivity_tol=args.tol)
         theta = (
             term.initial_params(0) if isinstance(term, NeuralPotential) else np.zeros(term.n_params)
         )
