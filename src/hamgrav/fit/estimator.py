@@ -85,7 +85,7 @@ NETWORK_BEST_HARMONIC = 1e-5
 #: results/continual-itokawa-no-gate). After a member's first validation gain, steps that lower only
 #: the training cost are rejected (``validation_gate``): such a step then costs a propagation
 #: instead of the normal equations, and the member tries a shorter one (it does not count towards
-#: the patience). On the eight Itokawa continual draws the warm / scratch wall is 0.39 (0.37-0.52)
+#: the patience). On the eight Itokawa continual draws the warm / scratch wall is 0.41 (0.36-0.52)
 #: and the final warm / scratch r1.2 0.79 (0.35-1.06), against 0.50 (0.41-0.62) and 0.80
 #: (0.25-0.98) without the gate (results/continual-itokawa, results/continual-itokawa-no-gate).
 #: Counting the gated trials towards the patience saved a little more time (0.41, 0.35-0.56) but
