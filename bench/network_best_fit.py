@@ -48,7 +48,7 @@ def main() -> None:
             "wall_s": round(wall, 2),
             "compiled_in_this_fit": k == 0,
             "iterations": result.iterations,
-            "outcome": result.outcome,
+            "outcome": result.outcome.value,
             "threads": os.cpu_count(),
         }
         if args.json:
@@ -58,7 +58,7 @@ def main() -> None:
             print(
                 f"seed {seed}: network-best fit of {arcs.n_arcs} arcs on {os.cpu_count()} "
                 f"cores: {wall:.1f} s{note}, {result.iterations} LM iterations, "
-                f"{result.outcome}",
+                f"{result.outcome.value}",
                 flush=True,
             )
 
