@@ -46,10 +46,10 @@ __all__ = [
 #: Relative/absolute tolerance of fit propagations of states (costs, trials, predictions).
 DEFAULT_FIT_TOLERANCE = 1e-12
 #: Tolerance of fit propagations that carry the sensitivities (normal equations, information
-#: matrices): order 13 instead of 15, about 30 % less time for a 721-parameter network on the
-#: 112 Itokawa arcs. Heyoka's bound is loose: against 1e-12, the normal equations of those arcs
-#: differ by 3e-13 (A^T A) and 5e-13 (A^T r), the cost by 4e-14, relative
-#: (tests/test_problem.py checks the agreement).
+#: matrices): order 13 instead of 15, 15-30 % less propagation time for a 721-parameter network
+#: on the 112 Itokawa arcs (the more for smoother fields). Heyoka's bound is loose: against
+#: 1e-12, the normal equations of those arcs differ by 3e-13 (A^T A) and 5e-13 (A^T r), the
+#: cost by 4e-14, relative (tests/core/test_problem.py checks the agreement).
 DEFAULT_SENSITIVITY_TOLERANCE = 1e-10
 #: Tolerance of truth propagations (simulated tracking, true descents).
 TRUTH_TOLERANCE = 1e-14
