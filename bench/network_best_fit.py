@@ -20,13 +20,7 @@ from hamgrav.experiments.common import simulate
 from hamgrav.experiments.descent import DescentExperimentConfig
 from hamgrav.experiments.runner import RunContext
 from hamgrav.fit.estimator import GravityEstimator, preset
-
-
-def _seeds(text: str) -> list[int]:
-    if "-" in text:
-        lo, hi = (int(v) for v in text.split("-"))
-        return list(range(lo, hi + 1))
-    return [int(v) for v in text.split(",")]
+from network_members import parse_seeds  # this folder's sibling script
 
 
 def main() -> None:
@@ -35,7 +29,7 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="one JSON object per draw")
     args = parser.parse_args()
     config = DescentExperimentConfig()
-    for k, seed in enumerate(_seeds(args.seeds)):
+    for k, seed in enumerate(parse_seeds(args.seeds)):
         truth, arcs = simulate(config, RunContext(seed=seed))
         estimator = GravityEstimator(body=truth.body, seed=seed, **preset("network-best"))
         t = time.perf_counter()

@@ -36,7 +36,8 @@ from hamgrav.fit.estimator import GravityEstimator, preset
 from hamgrav.sim.descent import DescentConfig, descend, miss_statistics, release_states
 
 
-def _seeds(text: str) -> list[int]:
+def parse_seeds(text: str) -> list[int]:
+    """Seeds from "0-7" (a range, both ends included) or "2,7" (a list)."""
     if "-" in text:
         lo, hi = (int(v) for v in text.split("-"))
         return list(range(lo, hi + 1))
@@ -119,7 +120,7 @@ def main() -> None:
     args = parser.parse_args()
     start = time.perf_counter()
     every = []
-    for seed in _seeds(args.seeds):
+    for seed in parse_seeds(args.seeds):
         rows = one_draw(seed, args.members, args.max_iter, args.harmonic)
         every += rows
         for r in rows:
