@@ -10,6 +10,7 @@ from hamgrav.core.model import Model
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
 from hamgrav.errors import InputError
+from hamgrav.fit.base import Outcome, SolveResult
 from hamgrav.fit.covariance import sample_covariance
 from hamgrav.fit.estimator import (
     GravityEstimator,
@@ -342,3 +343,123 @@ def test_an_ensemble_resumes_at_the_member_it_was_fitting(small_arcs, synthetic_
     assert members[0]["message"] == "restored from the checkpoint"
     assert members[1]["iterations"] >= 1
     assert again.fitted_.solver["max_iter"] == 6
+
+
+def _scripted_member_fits(small_arcs, synthetic_truth, outcomes, *, warm=False):
+    """A two-member ensemble fitted by a solver whose k-th member result has
+    ``outcomes[k]`` (its parameters: half its starting block); the estimator's ensemble
+    result and the ensemble problem, training and starting parameters."""
+    est = GravityEstimator("network", hidden=(4,), members=2, body=synthetic_truth.body)
+    model, _ = est.build_model(small_arcs)
+    problem = est._problem(model, small_arcs)
+    init = est.initial_params(model, small_arcs)
+    train, validation = np.arange(7), np.array([7, 8])
+    script = list(outcomes)
+
+    class Scripted(LevenbergMarquardt):
+        def _iterate(self, problem, theta, *rest):
+            return SolveResult(0.5 * theta, 1.0, 2.0, 1, 1, script.pop(0), "scripted")
+
+    result, summaries = est._fit_members(
+        problem, init, Scripted(), train, validation, None, None, None, None, warm
+    )
+    assert not script  # one solve per member
+    return result, summaries, ArcProblem(model, small_arcs), train, init
+
+
+@pytest.mark.parametrize(
+    "outcomes, ensemble",
+    [
+        (("converged", "converged"), "converged"),
+        (("iteration cap", "iteration cap"), "iteration cap"),
+        # members that both end normally but not alike: the weaker outcome
+        (("converged", "iteration cap"), "iteration cap"),
+        (("iteration cap", "converged"), "iteration cap"),
+        # a member that fails fails the ensemble
+        (("converged", "diverged"), "diverged"),
+        (("damping saturated", "converged"), "damping saturated"),
+        # from scratch, a member that no step improves is a failure too
+        (("no improvement", "converged"), "no improvement"),
+    ],
+)
+def test_an_ensemble_outcome_comes_from_its_members(
+    small_arcs, synthetic_truth, outcomes, ensemble
+):
+    result, summaries, problem, train, init = _scripted_member_fits(
+        small_arcs, synthetic_truth, [Outcome(o) for o in outcomes]
+    )
+    assert result.outcome.value == ensemble
+    assert [m["outcome"] for m in summaries] == list(outcomes)
+    # the ensemble's costs are those of its mean model on the training arcs, not the members'
+    np.testing.assert_array_equal(result.params, 0.5 * init)
+    assert result.cost == pytest.approx(problem.cost(result.params, train), rel=1e-12)
+    assert result.initial_cost == pytest.approx(problem.cost(init, train), rel=1e-12)
+
+
+def test_a_warm_member_no_step_improves_keeps_its_block_but_a_scratch_one_fails(
+    small_arcs, synthetic_truth
+):
+    stuck = [Outcome.NO_IMPROVEMENT, Outcome.ITERATION_CAP]
+    warm, summaries, *_ = _scripted_member_fits(small_arcs, synthetic_truth, stuck, warm=True)
+    assert [m["outcome"] for m in summaries] == ["converged", "iteration cap"]
+    assert warm.outcome.value == "iteration cap"
+    assert "member 0: kept its starting block" in warm.message
+    scratch, summaries, *_ = _scripted_member_fits(small_arcs, synthetic_truth, stuck)
+    assert [m["outcome"] for m in summaries] == ["no improvement", "iteration cap"]
+    assert scratch.outcome.value == "no improvement"
+    assert "kept" not in scratch.message
+
+
+@pytest.fixture(scope="module")
+def checkpointed_ensemble(small_arcs, synthetic_truth):
+    """A two-member ensemble fit without validation arcs (each member returns its last
+    iterate), its settings and every checkpoint it saved."""
+    settings = {
+        "term": "network",
+        "hidden": (4,),
+        "members": 2,
+        "validation_fraction": 0.0,
+        # heavily damped: every step is accepted (and checkpointed)
+        "solver": LevenbergMarquardt(max_iter=3, rtol=0.0, lambda0=1e2),
+        "seed": 5,
+        "body": synthetic_truth.body,
+    }
+    saved = []
+    full = GravityEstimator(**settings)
+    full.fit(small_arcs, checkpoint=lambda th, st: saved.append((th.copy(), dict(st))))
+    return full, settings, saved
+
+
+def test_an_ensemble_checkpoint_holds_the_current_block_of_the_member_being_fitted(
+    checkpointed_ensemble, small_arcs
+):
+    full, _, saved = checkpointed_ensemble
+    half = full.params_.size // 2
+    blocks = (slice(None, half), slice(half, None))
+    start = full.initial_params(full.model_, small_arcs)
+    for k in (0, 1):
+        mine = [th for th, st in saved if st["member"] == k]
+        assert mine, f"member {k} saved no checkpoint"
+        # without validation and rtol 0, a member's last checkpoint is its last iterate
+        np.testing.assert_array_equal(mine[-1][blocks[k]], full.params_[blocks[k]])
+        assert not np.array_equal(mine[0][blocks[k]], start[blocks[k]])
+        # the other member's block: final before it, still its start after it
+        other = blocks[1 - k]
+        expected = full.params_[other] if k == 1 else start[other]
+        for theta in mine:
+            np.testing.assert_array_equal(theta[other], expected)
+
+
+def test_resuming_an_ensemble_at_its_first_member_fits_the_next_from_scratch_settings(
+    checkpointed_ensemble, small_arcs
+):
+    """The checkpoint's state (its damping) continues the member it was saved from only:
+    the later members start as in the uninterrupted fit and end where it ended."""
+    full, settings, saved = checkpointed_ensemble
+    theta, state = next((th, st) for th, st in saved if st["member"] == 0)
+    assert state["lambda"] != settings["solver"].lambda0
+    again = GravityEstimator(**settings)
+    again.fit(small_arcs, init=theta, resume=state)
+    half = full.params_.size // 2
+    np.testing.assert_array_equal(again.params_[half:], full.params_[half:])
+    assert again.result_.members[1].history["lambda"][0] == settings["solver"].lambda0

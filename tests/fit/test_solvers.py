@@ -490,3 +490,255 @@ def test_lm_step_solve_falls_back_to_least_squares_on_a_singular_matrix():
     assert np.allclose(_solve_spd(spd, rhs), np.linalg.solve(spd, rhs), rtol=1e-10)
     singular = np.diag([2.0, 0.0, 1.0])
     assert np.allclose(_solve_spd(singular, np.array([4.0, 0.0, 3.0])), [2.0, 0.0, 3.0])
+
+
+class _LinearProblem(_OneParameterProblem):
+    """Training cost |A theta - b|^2 / 2 (arc 0); the validation cost (arc 1) is the given
+    function of theta."""
+
+    def __init__(self, a, b, validation_cost=None):
+        super().__init__(validation_cost)
+        self.a, self.b = np.asarray(a, float), np.asarray(b, float)
+        self.n_params = self.a.shape[1]
+
+    def objective(self, theta, idx=None):
+        r = self.a @ theta - self.b
+        return 0.5 * float(r @ r)
+
+    def arc_normals(self, theta, idx=None, known=None):
+        self.normals_at.append(theta.copy())
+        r = self.a @ theta - self.b
+        return ArcNormals(
+            theta.copy(), np.array([0]), "", 0.5 * float(r @ r), self.a.T @ r, self.a.T @ self.a
+        )
+
+
+def test_lm_damping_scales_by_the_normal_diagonal_and_its_floor():
+    """Marquardt's damping lambda diag(A^T A): every parameter's first step is the same
+    fraction 1 / (1 + lambda) of its Gauss-Newton step, however well the arcs see it. With a
+    damping floor, the barely seen parameter (diag 1e-8, below 1e-2 of the largest) is
+    damped at the floor instead: its step is a tiny fraction of its Gauss-Newton step."""
+    a = np.diag([1.0, 1e-4])
+    problem = _LinearProblem(a, a @ [1.0, 1.0])  # minimum at (1, 1), diag(A^T A) = (1, 1e-8)
+    solver = LevenbergMarquardt(lambda0=1.0, max_iter=1, rtol=0.0)
+    plain = solver.solve(problem, np.zeros(2))
+    np.testing.assert_allclose(plain.params, [0.5, 0.5], rtol=1e-12)
+    floored = replace(solver, damping_floor=1e-2).solve(problem, np.zeros(2))
+    # (1e-8 + lambda max(1e-8, 1e-2 * 1)) dc = 1e-8
+    np.testing.assert_allclose(floored.params, [0.5, 1e-8 / (1e-8 + 1e-2)], rtol=1e-12)
+
+
+def test_lm_rejects_a_step_that_does_not_lower_the_cost():
+    # started at the minimum: every step is zero and leaves the cost as it is
+    result = LevenbergMarquardt(max_iter=3).solve(_OneParameterProblem(None), np.ones(1))
+    assert result.history["accepted"][1:] == [False, False, False]
+    assert result.outcome.value == "no improvement"
+    np.testing.assert_array_equal(result.params, [1.0])
+
+
+def test_lm_damping_is_floored_at_lambda_floor():
+    # accepted steps divide lambda by 10 down to the floor 1e-3; on (theta - 1)^2 / 2 a step
+    # at lambda leaves lambda / (1 + lambda) of the error
+    solver = LevenbergMarquardt(
+        lambda0=0.1, lambda_down=10.0, lambda_floor=1e-3, max_iter=4, rtol=0.0
+    )
+    result = solver.solve(_OneParameterProblem(None), np.zeros(1))
+    assert all(result.history["accepted"])
+    np.testing.assert_allclose(result.history["lambda"], [0.1, 1e-2, 1e-3, 1e-3, 1e-3])
+    error = np.prod([lam / (1 + lam) for lam in (0.1, 1e-2, 1e-3, 1e-3)])
+    np.testing.assert_allclose(1.0 - result.params, [error], rtol=1e-5)
+
+
+def test_a_validation_cost_that_does_not_change_is_no_gain():
+    # validation arcs the parameter does not affect: no iterate beats the start
+    result = _patient_fit(lambda t: 0.25, 2)
+    assert result.iterations == 2
+    assert result.best_iteration == 0 and result.outcome.value == "no improvement"
+    np.testing.assert_array_equal(result.params, [0.0])
+
+
+def test_a_validation_gain_restarts_the_patience():
+    # iterates about 0.09, 0.30, 0.63, 0.90, 0.99, ...: the validation cost rises at the first
+    # and third, falls at the second and from the fourth on. With patience 2 no two accepted
+    # steps in a row go without a gain, so the fit runs to its iteration cap
+    def rises_falls_rises_falls(t):
+        if t < 0.05:
+            return 1.0
+        if t < 0.2:
+            return 2.0
+        if t < 0.5:
+            return 0.5
+        if t < 0.8:
+            return 1.5
+        return 0.2 - 0.1 * t
+
+    result = _patient_fit(rises_falls_rises_falls, 2)
+    assert all(result.history["accepted"])
+    assert result.iterations == 8 and result.best_iteration == 8
+    assert result.params[0] > 0.99
+
+
+def test_lm_resumes_exactly_from_a_checkpoint():
+    solver = LevenbergMarquardt(lambda0=10.0, max_iter=4, rtol=0.0)
+    saved = {}
+
+    def keep(theta, state):
+        if state["iteration"] == 2:
+            saved.update(theta=theta.copy(), state=state)
+
+    full = solver.solve(_OneParameterProblem(None), np.zeros(1), checkpoint=keep)
+    assert saved["state"]["lambda"] != solver.lambda0
+    resumed = replace(solver, max_iter=2).solve(
+        _OneParameterProblem(None), saved["theta"], resume=saved["state"]
+    )
+    assert resumed.history["lambda"] == full.history["lambda"][2:]
+    np.testing.assert_array_equal(resumed.params, full.params)
+
+
+def test_a_fit_capped_or_converged_forms_no_normals_at_a_last_iterate_it_does_not_return():
+    # validation cost lowest at 0.1: the first step (1/11) is the best, the second (about 0.30)
+    # and the third (about 0.63, at the cap) are not; the third step needs the second's normals
+    problem = _OneParameterProblem(lambda t: (t - 0.1) ** 2)
+    solver = LevenbergMarquardt(lambda0=10.0, max_iter=3, rtol=0.0)
+    result = solver.solve(problem, np.zeros(1), train=np.array([0]), validation=np.array([1]))
+    assert result.iterations == 3 and all(result.history["accepted"])
+    assert result.best_iteration == 1
+    np.testing.assert_allclose(result.params, [1 / 11])
+    assert result.normals.params[0] == result.params[0]
+    assert len(problem.normals_at) == 3 and max(problem.normals_at) < 0.5
+    # at lambda 1e6 the first step lowers the cost by 2e-6 of it (below rtol: converged),
+    # and it raises the validation cost: the start is returned, with the start's normals
+    problem = _OneParameterProblem(lambda t: 1.0 + t)
+    solver = LevenbergMarquardt(lambda0=1e6, max_iter=3, rtol=1e-5)
+    result = solver.solve(problem, np.zeros(1), train=np.array([0]), validation=np.array([1]))
+    assert result.iterations == 1 and result.history["accepted"] == [True, True]
+    assert result.outcome.value == "no improvement"
+    np.testing.assert_array_equal(result.params, [0.0])
+    assert problem.normals_at == [0.0] and result.normals.params[0] == 0.0
+
+
+def test_lm_with_a_kaula_weight_minimises_the_regularised_cost(sh_world):
+    """From the unregularised minimum (the truth, noiseless arcs) the Kaula term pulls the
+    coefficients in: the fit ends where the regularised gradient A^T r + alpha K c vanishes,
+    with a smaller penalty c^T K c than the truth's (J + alpha c^T K c / 2 is lower there,
+    and J is not below the truth's 0)."""
+    model, c_true, arcs = sh_world
+    problem = ArcProblem(model, arcs)
+    alpha = 1.0
+    k = alpha * kaula_diagonal(problem)
+
+    def gradient(c):
+        return problem.normal_equations(c)[1] + k * c
+
+    result = LevenbergMarquardt(kaula_alpha=alpha, rtol=1e-12, max_iter=20).solve(problem, c_true)
+    assert result.outcome.value == "converged" and result.best_iteration > 0
+    c = result.params
+    assert np.linalg.norm(gradient(c)) < 1e-8 * np.linalg.norm(gradient(c_true))
+    assert c @ (k * c) < c_true @ (k * c_true)
+
+
+def test_continual_validation_arcs_are_the_held_out_ones_whatever_order_arcs_arrive_in(
+    small_arcs, synthetic_truth
+):
+    """Stages need not bring the arcs in index order (a campaign picks its next arcs): the
+    fit's validation arcs are those held out, and it never trains on them."""
+    stages = [np.array([6, 2, 8, 0]), np.array([1, 7, 3, 5, 4])]
+    trained = []
+
+    class Spy(LevenbergMarquardt):
+        def _iterate(self, problem, theta, train, validation, *rest):
+            trained.append((problem.arcs, train, validation))
+            return super()._iterate(problem, theta, train, validation, *rest)
+
+    est = GravityEstimator(
+        "sh", degree=2, validation_fraction=0.25, solver=Spy(max_iter=2), body=synthetic_truth.body
+    )
+    records = fit_continual(est, small_arcs, stages)
+    assert len(records[0].validation) == 1 and len(records[1].validation) == 2
+    for record, (arcs, train, validation) in zip(records, trained, strict=True):
+        np.testing.assert_array_equal(arcs.times, small_arcs.times[record.arcs])
+        assert sorted(record.arcs[validation]) == sorted(record.validation)
+        assert not set(record.arcs[train]) & set(record.validation)
+        assert len(train) + len(validation) == record.n_arcs
+
+
+def test_a_restarted_stage_keeps_the_held_out_arcs(small_arcs, synthetic_truth, monkeypatch):
+    """A stage whose warm start does not propagate is fitted again from scratch on the same
+    split: the arcs held out so far are its validation arcs, not trained on."""
+    est = GravityEstimator("sh", degree=2, validation_fraction=0.25, body=synthetic_truth.body)
+    run = ContinualFit(est, small_arcs)
+    run.add(np.arange(0, 5))
+    fit = est.fit
+
+    def fit_unless_warm(subset, *, init=None, **kw):
+        if init is not None:
+            raise PropagationError("arcs [6] did not propagate to the end")
+        return fit(subset, init=init, **kw)
+
+    monkeypatch.setattr(est, "fit", fit_unless_warm)
+    second = run.add(np.arange(5, 9))
+    assert not second.warm_started and len(second.validation) == 2
+    assert sorted(second.arcs[est.validation_]) == sorted(second.validation)
+    assert not set(second.arcs[est.train_]) & set(second.validation)
+
+
+def test_every_warm_stage_adds_to_the_previous_stages_normal_equations(small_arcs, synthetic_truth):
+    """Three stages of a single SH fit: each warm stage's first normal equations are the
+    previous stage's (at its returned parameters) plus the new arcs'; only the new arcs are
+    propagated for them."""
+    stages = [np.arange(0, 3), np.arange(3, 6), np.arange(6, 9)]
+    est = GravityEstimator(
+        "sh", degree=2, solver=LevenbergMarquardt(max_iter=3), body=synthetic_truth.body
+    )
+    run = ContinualFit(est, small_arcs)
+    arc_normals, normal_equations = ArcProblem.arc_normals, ArcProblem.normal_equations
+    formed, starts = [], []
+
+    def spy(problem, theta, arc_indices=None, *, known=None, **kw):
+        formed.clear()
+        normals = arc_normals(problem, theta, arc_indices, known=known, **kw)
+        starts.append((known, sorted(np.concatenate(formed))))
+        return normals
+
+    def spy_formed(problem, theta, arc_indices=None, *args, **kw):
+        formed.append(np.asarray(arc_indices))
+        return normal_equations(problem, theta, arc_indices, *args, **kw)
+
+    ArcProblem.arc_normals, ArcProblem.normal_equations = spy, spy_formed
+    try:
+        for k, new in enumerate(stages):
+            before = run.records[-1].result.normals if run.records else None
+            starts.clear()
+            record = run.add(new)
+            known, propagated = starts[0]  # the stage's first normal equations
+            if k == 0:
+                assert known is None and propagated == [0, 1, 2]
+            else:
+                assert record.warm_started
+                assert before is not None and known is before
+                assert propagated == list(new)
+    finally:
+        ArcProblem.arc_normals, ArcProblem.normal_equations = arc_normals, normal_equations
+
+
+def test_each_stage_holds_out_its_own_seeded_split_of_its_arriving_arcs(
+    small_arcs, synthetic_truth
+):
+    """Stage k holds out ``validation_split(n_new, fraction, seed + k)`` of its new arcs (so
+    stages of the same size do not all hold out the same positions); the arcs held out are
+    all those held out so far."""
+    stages = [np.array([0, 1, 2]), np.array([3, 4, 5]), np.array([6, 7, 8])]
+    est = GravityEstimator(
+        "sh",
+        degree=2,
+        validation_fraction=0.4,
+        seed=3,
+        solver=LevenbergMarquardt(max_iter=1),
+        body=synthetic_truth.body,
+    )
+    records = fit_continual(est, small_arcs, stages)
+    held_out = []
+    for k, (new, record) in enumerate(zip(stages, records, strict=True)):
+        _, val = split_validation(len(new), 0.4, 3 + k)
+        held_out.extend(new[val])
+        assert sorted(record.validation) == sorted(held_out)
