@@ -269,10 +269,9 @@ def test_kaula_scan_on_a_dask_client_equals_builtin_map(sh_world):
     assert np.array_equal(mapped[1].params, serial[1].params)
 
 
-def test_continual_stages_never_train_on_validation_arcs(small_arcs, synthetic_truth):
-    """Arcs held out at a stage stay held out at every later stage, and the warm-started
-    fit's training arcs never include them."""
-    stages = [np.arange(0, 5), np.arange(5, 9)]
+def _spied_continual_fit(small_arcs, truth, stages, max_iter):
+    """SH 2 fitted continually over ``stages`` (25 % held out per stage); returns the stage
+    records and, per stage, the (arcs, train, validation) its LM solver was given."""
     trained = []
 
     class Spy(LevenbergMarquardt):
@@ -281,9 +280,16 @@ def test_continual_stages_never_train_on_validation_arcs(small_arcs, synthetic_t
             return super()._iterate(problem, theta, train, validation, *rest)
 
     est = GravityEstimator(
-        "sh", degree=2, validation_fraction=0.25, solver=Spy(max_iter=3), body=synthetic_truth.body
+        "sh", degree=2, validation_fraction=0.25, solver=Spy(max_iter=max_iter), body=truth.body
     )
-    records = fit_continual(est, small_arcs, stages)
+    return fit_continual(est, small_arcs, stages), trained
+
+
+def test_continual_stages_never_train_on_validation_arcs(small_arcs, synthetic_truth):
+    """Arcs held out at a stage stay held out at every later stage, and the warm-started
+    fit's training arcs never include them."""
+    stages = [np.arange(0, 5), np.arange(5, 9)]
+    records, trained = _spied_continual_fit(small_arcs, synthetic_truth, stages, 3)
     assert records[1].warm_started
     assert set(records[0].validation) <= set(records[1].validation)
     assert len(records[0].validation) == 1 and len(records[1].validation) == 2
@@ -643,17 +649,7 @@ def test_continual_validation_arcs_are_the_held_out_ones_whatever_order_arcs_arr
     """Stages need not bring the arcs in index order (a campaign picks its next arcs): the
     fit's validation arcs are those held out, and it never trains on them."""
     stages = [np.array([6, 2, 8, 0]), np.array([1, 7, 3, 5, 4])]
-    trained = []
-
-    class Spy(LevenbergMarquardt):
-        def _iterate(self, problem, theta, train, validation, *rest):
-            trained.append((problem.arcs, train, validation))
-            return super()._iterate(problem, theta, train, validation, *rest)
-
-    est = GravityEstimator(
-        "sh", degree=2, validation_fraction=0.25, solver=Spy(max_iter=2), body=synthetic_truth.body
-    )
-    records = fit_continual(est, small_arcs, stages)
+    records, trained = _spied_continual_fit(small_arcs, synthetic_truth, stages, 2)
     assert len(records[0].validation) == 1 and len(records[1].validation) == 2
     for record, (arcs, train, validation) in zip(records, trained, strict=True):
         np.testing.assert_array_equal(arcs.times, small_arcs.times[record.arcs])
@@ -682,7 +678,9 @@ def test_a_restarted_stage_keeps_the_held_out_arcs(small_arcs, synthetic_truth, 
     assert not set(second.arcs[est.train_]) & set(second.validation)
 
 
-def test_every_warm_stage_adds_to_the_previous_stages_normal_equations(small_arcs, synthetic_truth):
+def test_every_warm_stage_adds_to_the_previous_stages_normal_equations(
+    small_arcs, synthetic_truth, monkeypatch
+):
     """Three stages of a single SH fit: each warm stage's first normal equations are the
     previous stage's (at its returned parameters) plus the new arcs'; only the new arcs are
     propagated for them."""
@@ -704,21 +702,19 @@ def test_every_warm_stage_adds_to_the_previous_stages_normal_equations(small_arc
         formed.append(np.asarray(arc_indices))
         return normal_equations(problem, theta, arc_indices, *args, **kw)
 
-    ArcProblem.arc_normals, ArcProblem.normal_equations = spy, spy_formed
-    try:
-        for k, new in enumerate(stages):
-            before = run.records[-1].result.normals if run.records else None
-            starts.clear()
-            record = run.add(new)
-            known, propagated = starts[0]  # the stage's first normal equations
-            if k == 0:
-                assert known is None and propagated == [0, 1, 2]
-            else:
-                assert record.warm_started
-                assert before is not None and known is before
-                assert propagated == list(new)
-    finally:
-        ArcProblem.arc_normals, ArcProblem.normal_equations = arc_normals, normal_equations
+    monkeypatch.setattr(ArcProblem, "arc_normals", spy)
+    monkeypatch.setattr(ArcProblem, "normal_equations", spy_formed)
+    for k, new in enumerate(stages):
+        before = run.records[-1].result.normals if run.records else None
+        starts.clear()
+        record = run.add(new)
+        known, propagated = starts[0]  # the stage's first normal equations
+        if k == 0:
+            assert known is None and propagated == [0, 1, 2]
+        else:
+            assert record.warm_started
+            assert before is not None and known is before
+            assert propagated == list(new)
 
 
 def test_each_stage_holds_out_its_own_seeded_split_of_its_arriving_arcs(
