@@ -1122,7 +1122,9 @@ def _experiment_command(experiment):
             if given[name] == default:
                 given[name] = None
         base = config_type.from_toml(runner["config"]) if runner["config"] else defaults
-        config = base.updated(kwargs, "command-line options")
+        from .experiments.config import COMMAND_LINE
+
+        config = base.updated(kwargs, COMMAND_LINE)
         output = runner["output"] or Path(experiment.default_output)
         if output.exists() and not output.is_dir():
             raise InputError(f"-o {output} exists and is not a folder; give a folder path")

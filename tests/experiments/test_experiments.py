@@ -211,7 +211,13 @@ def test_descent_with_both_blocks_tiny(tmp_path):
         (["deep", "--deep-bins-rb", "0.9,0.5"], "deep_bins_rb must be two or more increasing"),
         (["deep", "--stages", "19"], "stages must lie between 1 and --orbits (18)"),
         (["deep", "--descent-span", "all"], "descent_span must be one of end, whole"),
-        (["deep", "--descent-iterations", "-1"], "descent_iterations must be 0 or more"),
+        (["deep", "--descent-iterations", "-1"], "--descent-iterations must be at least 0, got -1"),
+        (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
+        (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
+        (["descent", "--altitude-m", "-5"], "--altitude-m must be above 0, got -5.0"),
+        (["continual", "--stages", "0"], "--stages must be at least 1, got 0"),
+        (["uncertainty", "--thresholds", "5"], "every value of --thresholds must be at most 1"),
+        (["swarm", "--hidden", "0"], "every value of --hidden must be at least 1, got 0"),
     ],
 )
 def test_experiment_rejects_an_unknown_choice(tmp_path, args, message):

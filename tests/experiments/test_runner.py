@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from hamgrav.errors import InputError
+from hamgrav.errors import HamgravError, InputError
 from hamgrav.experiments.descent import DescentExperimentConfig
 from hamgrav.experiments.runner import aggregate, format_range, run_experiment
 
@@ -124,6 +124,35 @@ def test_results_folder(tmp_path):
 def test_repeat_must_be_positive():
     with pytest.raises(InputError, match="--repeat must be at least 1"):
         run_experiment("descent", TINY, repeat=0)
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"workers": 2, "scheduler": "tcp://127.0.0.1:8786"}, "not both"),
+        ({"scheduler": "no-port-here"}, "--scheduler no-port-here: cannot connect"),
+    ],
+)
+def test_dask_settings_refused_before_any_work(tmp_path, settings, message):
+    with pytest.raises(InputError, match=message):
+        run_experiment("descent", TINY, output=tmp_path / "x", **settings)
+    assert not (tmp_path / "x").exists()
+
+
+def test_unknown_body_refused_before_any_cluster_starts(tmp_path, monkeypatch):
+    import hamgrav.experiments.runner as runner_module
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a cluster was started for a config that cannot run")
+
+    monkeypatch.setattr(runner_module, "dask_client", no_cluster)
+    (tmp_path / "bodies").mkdir()
+    (tmp_path / "bodies" / "catalogue.json").write_text("{}")
+    monkeypatch.setenv("HAMGRAV_BODIES", str(tmp_path / "bodies"))
+    config = TINY.updated({"body": "vesta"})
+    with pytest.raises(HamgravError, match="unknown body 'vesta'; known: synthetic"):
+        run_experiment("descent", config, workers=2, output=tmp_path / "x")
+    assert not (tmp_path / "x").exists()
 
 
 def test_single_run_maps_its_own_work_over_the_cluster(tmp_path):

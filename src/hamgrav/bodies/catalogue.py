@@ -217,6 +217,27 @@ def list_bodies(folder: str | os.PathLike | None = None) -> list[str]:
     return names
 
 
+def _catalogue_entry(name: str, folder: Path) -> dict:
+    """The catalogue entry of body ``name`` in ``folder``; :class:`BodyDataError` naming the
+    known bodies when there is none."""
+    catalogue = read_catalogue(folder)
+    key = name.strip().lower()
+    if key not in catalogue:
+        raise BodyDataError(
+            f"unknown body {name!r}; known: {', '.join(list_bodies(folder))} "
+            f"(catalogue {folder / 'catalogue.json'})"
+        )
+    return catalogue[key]
+
+
+def check_body_name(name: str, folder: str | os.PathLike | None = None) -> None:
+    """Raise :class:`BodyDataError` unless ``name`` is a synthetic body or has an entry in the
+    catalogue of ``folder`` (default :func:`bodies_dir`): the cheap check made before a long
+    run, without reading the body's files."""
+    if name.strip().lower() not in SYNTHETIC_BODIES:
+        _catalogue_entry(name, Path(folder) if folder else bodies_dir())
+
+
 def load_body(
     name: str, *, low_resolution: bool = False, folder: str | os.PathLike | None = None
 ) -> Body:
@@ -226,13 +247,7 @@ def load_body(
     if key in SYNTHETIC_BODIES:
         return SYNTHETIC_BODIES[key]()
     folder = Path(folder) if folder else bodies_dir()
-    catalogue = read_catalogue(folder)
-    if key not in catalogue:
-        raise BodyDataError(
-            f"unknown body {name!r}; known: {', '.join(list_bodies(folder))} "
-            f"(catalogue {folder / 'catalogue.json'})"
-        )
-    entry = catalogue[key]
+    entry = _catalogue_entry(name, folder)
     try:
         gm = float(entry["gm_m3_s2"])
         period = float(entry["spin_period_s"])

@@ -62,12 +62,16 @@ class AnomaliesExperimentConfig(CampaignConfig):
         "numbers imply) or 'centre-of-mass' of the truth.",
     )
     radius_rb: tuple[float, ...] = option((1.08, 1.7), "Orbit radius range [R_B].")
-    sh_degrees: tuple[int, ...] = option((4, 8, 12, 16), "SH residual degrees (LM).")
-    kaula_degrees: tuple[int, ...] = option((8, 16), "SH degrees also fitted with Kaula scans.")
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    sh_degrees: tuple[int, ...] = option((4, 8, 12, 16), "SH residual degrees (LM).", at_least=2)
+    kaula_degrees: tuple[int, ...] = option(
+        (8, 16), "SH degrees also fitted with Kaula scans.", at_least=2
+    )
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
     harmonic: float = harmonic_option("shape+network")
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
-    shells_rb: tuple[float, ...] = option((1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].")
+    shells_rb: tuple[float, ...] = option(
+        (1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].", at_least=1.0
+    )
 
 
 class AnomaliesExperiment(Experiment):

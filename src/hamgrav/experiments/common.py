@@ -43,13 +43,19 @@ class CampaignConfig(ExperimentConfig):
 
     body: str = option("itokawa", "Body: a catalogue name or 'synthetic'.")
     interior: str = option("head-tail", f"Truth interior: {' | '.join(INTERIORS)}.")
-    n_mascons: int = option(600, "Truth mascons.")
-    orbits: int = option(16, "Orbits, on a radius x inclination grid.")
-    radius_rb: tuple[float, ...] = option((1.2, 2.0), "Orbit radius range [R_B].")
-    inclination_deg: tuple[float, ...] = option((10.0, 80.0), "Inclination range [deg].")
-    arcs_per_orbit: int = option(7, "Arcs per orbit (40 samples at 14 s each).")
-    window_spin_periods: float = option(1.0, "Tracking window of each orbit [spin periods].")
-    min_radius_rb: float = option(0.0, "Redraw orbits dipping below this radius [R_B] (0: off).")
+    n_mascons: int = option(600, "Truth mascons.", at_least=1)
+    orbits: int = option(16, "Orbits, on a radius x inclination grid.", at_least=1)
+    radius_rb: tuple[float, ...] = option((1.2, 2.0), "Orbit radius range [R_B].", above=0)
+    inclination_deg: tuple[float, ...] = option(
+        (10.0, 80.0), "Inclination range [deg].", at_least=0, at_most=180
+    )
+    arcs_per_orbit: int = option(7, "Arcs per orbit (40 samples at 14 s each).", at_least=1)
+    window_spin_periods: float = option(
+        1.0, "Tracking window of each orbit [spin periods].", above=0
+    )
+    min_radius_rb: float = option(
+        0.0, "Redraw orbits dipping below this radius [R_B] (0: off).", at_least=0
+    )
     frame: str = option(
         "centre-of-mass",
         "Origin of the body frame (arcs, central term, SH, evaluation shells): 'centre-of-mass' "
@@ -76,6 +82,12 @@ class CampaignConfig(ExperimentConfig):
         # the option of harmonic_option(), in the experiments that have a network-best row
         if getattr(self, "harmonic", 0.0) < 0:
             raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
+        # the stages of the experiments that bring the orbits in stages, each at least one orbit
+        stages = getattr(self, "stages", 1)
+        if not 1 <= stages <= self.orbits:
+            raise InputError(
+                f"stages must lie between 1 and --orbits ({self.orbits}), got {stages}"
+            )
         # the options of lm_iterations_option() and warm-stage caps, where an experiment has them
         for name in ("lm_iterations", "warm_iterations", "warm_patience"):
             if getattr(self, name, 1) < 1:

@@ -12,14 +12,52 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.files import read_toml
 
-__all__ = ["ExperimentConfig", "option"]
+__all__ = ["ExperimentConfig", "option", "COMMAND_LINE"]
+
+#: The ``source`` of a config built from command-line options: its errors name the options
+#: (``--shells-rb``) rather than the keys of a config file (``shells_rb``).
+COMMAND_LINE = "command-line options"
 
 
-def option(default, help: str):  # noqa: A002 (the CLI's word)
-    """A config field with its help text (shown by ``hamgrav experiment NAME --help``)."""
+def option(
+    default,
+    help: str,  # noqa: A002 (the CLI's word)
+    *,
+    at_least: float | None = None,
+    above: float | None = None,
+    at_most: float | None = None,
+):
+    """A config field with its help text (shown by ``hamgrav experiment NAME --help``) and
+    optional bounds on its value, or on every item of a list: ``at_least`` and ``at_most``
+    inclusive, ``above`` exclusive, in the field's own unit. The bounds are checked when a
+    config is read, before anything runs."""
     if isinstance(default, list | dict | set):
         raise TypeError("config defaults must be immutable")
-    return dataclasses.field(default=default, metadata={"help": help})
+    bounds = {"at_least": at_least, "above": above, "at_most": at_most}
+    metadata = {"help": help, "bounds": {k: v for k, v in bounds.items() if v is not None}}
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def _label(name: str, source: str) -> str:
+    """How an error names field ``name``: its option on the command line, else its key."""
+    return f"--{name.replace('_', '-')}" if source == COMMAND_LINE else name
+
+
+def _check_bounds(label: str, value, bounds: dict) -> None:
+    """Raise :class:`InputError` when ``value`` (a number or a tuple of them; None passes)
+    breaks one of ``bounds`` (see :func:`option`)."""
+    if value is None or not bounds:
+        return
+    items = value if isinstance(value, tuple) else (value,)
+    what = f"every value of {label}" if isinstance(value, tuple) else label
+    shown = ",".join(map(str, value)) if isinstance(value, tuple) else value
+    for item in items:
+        if "at_least" in bounds and not item >= bounds["at_least"]:
+            raise InputError(f"{what} must be at least {bounds['at_least']}, got {shown}")
+        if "above" in bounds and not item > bounds["above"]:
+            raise InputError(f"{what} must be above {bounds['above']}, got {shown}")
+        if "at_most" in bounds and not item <= bounds["at_most"]:
+            raise InputError(f"{what} must be at most {bounds['at_most']}, got {shown}")
 
 
 def _coerce(name: str, kind, value):
@@ -88,8 +126,11 @@ class ExperimentConfig:
         if unknown:
             raise InputError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(types_)}")
         try:
-            values = {k: _coerce(k, types_[k], v) for k, v in data.items()}
+            values = {k: _coerce(_label(k, source), types_[k], v) for k, v in data.items()}
             config = cls(**values)
+            for f in dataclasses.fields(cls):
+                bounds = f.metadata.get("bounds", {})
+                _check_bounds(_label(f.name, source), getattr(config, f.name), bounds)
             config.check()
         except InputError as exc:
             raise InputError(f"{source}: {exc}") from None

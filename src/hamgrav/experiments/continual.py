@@ -39,8 +39,8 @@ __all__ = ["ContinualExperimentConfig", "ContinualExperiment"]
 class ContinualExperimentConfig(CampaignConfig):
     """The continual campaign: stages of whole orbits; the network and SH 8."""
 
-    stages: int = option(4, "Stages (orbits split evenly, in grid order).")
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    stages: int = option(4, "Stages (orbits split evenly, in grid order).", at_least=1)
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
     harmonic: float = harmonic_option("network-best")
     lm_iterations: int = lm_iterations_option(
         "LM iteration cap of each network member fitted from scratch."
@@ -54,7 +54,7 @@ class ContinualExperimentConfig(CampaignConfig):
         "Accepted steps without a lower validation cost after which a warm stage stops.",
     )
     warm_gate: bool = warm_gate_option()
-    sh_degree: int = option(8, "SH degree.")
+    sh_degree: int = option(8, "SH degree.", at_least=2)
 
 
 class ContinualExperiment(Experiment):

@@ -133,14 +133,16 @@ class DeepExperimentConfig(CampaignConfig):
         "Stages the orbits arrive in, in a fixed order: each stage brings one orbit per start "
         "radius, at different inclinations; each stage's fits are warm-started from the "
         "previous stage's.",
+        at_least=1,
     )
-    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees fitted (LM).")
+    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees fitted (LM).", at_least=2)
     map_degrees: tuple[int, ...] = option(
         (8, 12),
         "SH degrees drawn in the equatorial maps; their error > 1 defines the patches "
         "(must be among --sh-degrees).",
+        at_least=2,
     )
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
     harmonic: float = harmonic_option()
     lm_iterations: int = lm_iterations_option(
         "LM iteration cap of each network member at the first stage."
@@ -150,22 +152,26 @@ class DeepExperimentConfig(CampaignConfig):
         "LM iteration cap of each network member at warm-started stages.",
     )
     warm_gate: bool = warm_gate_option()
-    altitude_m: float = option(300.0, "Altitude of the surface-following evaluation set [m].")
+    altitude_m: float = option(
+        300.0, "Altitude of the surface-following evaluation set [m].", above=0
+    )
     shells_rb: tuple[float, ...] = option(
         (1.2, 1.3, 1.4, 1.5, 1.6, 1.7),
         "Exterior evaluation shells [R_B] (the orbit radii); the exterior error is their mean.",
+        at_least=1.0,
     )
     deep_bins_rb: tuple[float, ...] = option(
         (0.25, 0.45, 0.55, 0.65, 0.75, 0.85, 0.95),
         "Edges [R_B] of the deep-region radial bins of the surface-following set "
         "(increasing, at most 1).",
     )
-    map_extent_rb: float = option(1.3, "Half-width of the equatorial maps [R_B].")
-    map_points: int = option(161, "Grid points along each side of the equatorial maps.")
+    map_extent_rb: float = option(1.3, "Half-width of the equatorial maps [R_B].", above=0)
+    map_points: int = option(161, "Grid points along each side of the equatorial maps.", at_least=3)
     descents: int = option(
         9,
         "Deployment descents tracked as one arc each (see descent_span) and assimilated "
         "after the last stage (0: off).",
+        at_least=0,
     )
     descent_span: str = option(
         "end",
@@ -177,13 +183,17 @@ class DeepExperimentConfig(CampaignConfig):
         "0: the descents arrive as a continual stage (one held out for validation, the warm "
         "stage's solver); n > 0: every descent is trained and each model refitted without a "
         "validation stop, the network by n LM iterations per member.",
+        at_least=0,
     )
     descent_degrees: tuple[int, ...] = option(
         (8, 12),
         "SH degrees warm-refitted on the descents with the network (among sh_degrees).",
+        at_least=2,
     )
     random_orders: int = option(
-        5, "Random arrival orders of the same orbits, network only, seeded by the seed (0: off)."
+        5,
+        "Random arrival orders of the same orbits, network only, seeded by the seed (0: off).",
+        at_least=0,
     )
     d_optimal: bool = option(
         True, "Run the D-optimal campaign (each stage's orbits chosen from the pool)."
@@ -191,18 +201,14 @@ class DeepExperimentConfig(CampaignConfig):
 
     def check(self) -> None:
         super().check()
-        if not 1 <= self.stages <= self.orbits:
-            raise InputError(
-                f"stages must lie between 1 and --orbits ({self.orbits}), got {self.stages}"
-            )
-        if not self.sh_degrees or any(d < 2 for d in self.sh_degrees):
+        if not self.sh_degrees:
             raise InputError("sh_degrees must be one or more degrees of at least 2")
         missing = sorted(set(self.map_degrees) - set(self.sh_degrees))
         if not self.map_degrees or missing:
             raise InputError(
                 f"map_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"
             )
-        if not self.hidden or any(h < 1 for h in self.hidden):
+        if not self.hidden:
             raise InputError("hidden must be one or more positive layer sizes, e.g. 24,24")
         if self.lm_iterations < 1 or self.warm_iterations < 1:
             raise InputError("lm_iterations and warm_iterations must be at least 1")
@@ -210,10 +216,6 @@ class DeepExperimentConfig(CampaignConfig):
             raise InputError(
                 f"descent_span must be one of {', '.join(DESCENT_SPANS)}, got {self.descent_span!r}"
             )
-        if self.descent_iterations < 0:
-            raise InputError(f"descent_iterations must be 0 or more, got {self.descent_iterations}")
-        if not self.altitude_m > 0:
-            raise InputError(f"altitude_m must be positive, got {self.altitude_m}")
         if not self.shells_rb or any(s <= 1.0 for s in self.shells_rb):
             raise InputError("shells_rb must be one or more radii above 1 R_B (exterior)")
         edges = np.asarray(self.deep_bins_rb, dtype=float)
@@ -221,10 +223,6 @@ class DeepExperimentConfig(CampaignConfig):
             raise InputError(
                 "deep_bins_rb must be two or more increasing edges in (0, 1], e.g. 0.45,0.65,0.95"
             )
-        if not self.map_extent_rb > 0 or self.map_points < 3:
-            raise InputError("map_extent_rb must be positive and map_points at least 3")
-        if self.descents < 0 or self.random_orders < 0:
-            raise InputError("descents and random_orders must be >= 0 (0: off)")
         if self.descents and set(self.descent_degrees) - set(self.sh_degrees):
             raise InputError(
                 f"descent_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"

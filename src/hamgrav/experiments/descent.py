@@ -77,14 +77,18 @@ PAPER_TABLE = {
 class DescentExperimentConfig(CampaignConfig):
     """The descent experiment: the campaign, the fitted rows and the descents."""
 
-    descents: int = option(30, "Descents released at 1.3 R_B.")
-    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees fitted (LM).")
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
-    adam_steps: int = option(1500, "Adam steps of the 'network' row (the paper's protocol).")
-    learning_rate: float = option(1e-2, "Adam peak learning rate.")
+    descents: int = option(30, "Descents released at 1.3 R_B.", at_least=1)
+    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees fitted (LM).", at_least=2)
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    adam_steps: int = option(
+        1500, "Adam steps of the 'network' row (the paper's protocol).", at_least=1
+    )
+    learning_rate: float = option(1e-2, "Adam peak learning rate.", above=0)
     lm_iterations: int = lm_iterations_option("LM iteration cap of the 'network-best' row.")
     harmonic: float = harmonic_option()
-    altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
+    altitude_m: float = option(
+        30.0, "Altitude of the surface-following evaluation set [m].", above=0
+    )
     prior: str = option(
         "none",
         "Known part of the fitted models: 'none' (the point mass: tracking alone), 'shape' "
@@ -98,7 +102,9 @@ class DescentExperimentConfig(CampaignConfig):
         "curves (same seed) are drawn dashed in the touchdown figure, as in the paper's figure "
         "with both blocks.",
     )
-    shells_rb: tuple[float, ...] = option((1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].")
+    shells_rb: tuple[float, ...] = option(
+        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0
+    )
 
     def check(self) -> None:
         super().check()

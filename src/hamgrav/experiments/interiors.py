@@ -49,12 +49,16 @@ class InteriorsExperimentConfig(CampaignConfig):
     """Truth interiors and the models fitted to each."""
 
     truths: tuple[str, ...] = option(("head-tail", "void"), "Truth interiors, each a campaign.")
-    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH residual degrees (LM).")
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH residual degrees (LM).", at_least=2)
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
     harmonic: float = harmonic_option("network-scratch and shape+network")
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
-    altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
-    shells_rb: tuple[float, ...] = option((1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].")
+    altitude_m: float = option(
+        30.0, "Altitude of the surface-following evaluation set [m].", above=0
+    )
+    shells_rb: tuple[float, ...] = option(
+        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0
+    )
 
     def check(self) -> None:
         super().check()

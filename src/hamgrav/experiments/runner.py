@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..bodies.catalogue import bodies_dir
+from ..bodies.catalogue import bodies_dir, check_body_name
 from ..errors import InputError
 from ..report.writer import save_figure, write_json, write_text
 from .config import ExperimentConfig
@@ -210,7 +210,14 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler)
+        except (OSError, ValueError, TypeError) as exc:  # unreachable or malformed address
+            raise InputError(
+                f"--scheduler {scheduler}: cannot connect ({exc}); start the scheduler or give "
+                "its address as tcp://HOST:PORT"
+            ) from None
+        with client:
             yield client
         return
     if workers and workers > 0:
@@ -220,7 +227,7 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
                 threads_per_worker=1,
                 processes=True,
                 dashboard_address=":0",  # a free port: never clash with another cluster
-                silence_logs=logging.ERROR,
+                silence_logs=logging.CRITICAL,
             ) as cluster,
             Client(cluster) as client,
         ):
@@ -231,7 +238,7 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
         n_workers=1,
         threads_per_worker=1,
         dashboard_address=":0",  # a free port: never clash with another cluster
-        silence_logs=logging.ERROR,
+        silence_logs=logging.CRITICAL,
     ) as client:
         yield client
 
@@ -302,9 +309,14 @@ def run_experiment(
     config = config or experiment.default_config()
     if repeat < 1:
         raise InputError(f"--repeat must be at least 1, got {repeat}")
+    if workers and scheduler:
+        raise InputError("give --workers or --scheduler, not both (a scheduler has its workers)")
     say = say or _stderr_say("")
     seeds = [int(seed) + i for i in range(repeat)]
     folder = str(bodies_dir())
+    if isinstance(getattr(config, "body", None), str):
+        # before any cluster starts or campaign is simulated
+        check_body_name(config.body, folder)
     start = time.perf_counter()
     outputs: dict[int, RunOutput] = {}
     mode = (

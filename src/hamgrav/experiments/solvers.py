@@ -32,12 +32,12 @@ __all__ = ["SolverExperimentConfig", "SolverExperiment"]
 class SolverExperimentConfig(CampaignConfig):
     """The solver comparison: the campaign, the network, the solvers' budgets, the stages."""
 
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
-    adam_steps: int = option(1500, "Adam steps.")
-    learning_rate: float = option(1e-2, "Adam peak learning rate.")
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    adam_steps: int = option(1500, "Adam steps.", at_least=1)
+    learning_rate: float = option(1e-2, "Adam peak learning rate.", above=0)
     lm_iterations: int = option(20, "LM iterations of the network.")
-    stages: int = option(4, "Stages of the continual fits (orbits split evenly).")
-    picks: int = option(8, "D-optimal picks.")
+    stages: int = option(4, "Stages of the continual fits (orbits split evenly).", at_least=1)
+    picks: int = option(8, "D-optimal picks.", at_least=1)
 
 
 class SolverExperiment(Experiment):

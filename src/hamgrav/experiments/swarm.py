@@ -68,28 +68,41 @@ class SwarmExperimentConfig(ExperimentConfig):
     body: str = option("bennu", "Body: a catalogue name or 'synthetic'.")
     interior: str = option("uniform", f"Truth interior: {' | '.join(INTERIORS)}.")
     n_mascons: int = option(600, "Truth mascons.")
-    particles: int = option(28, "Particles ejected and tracked.")
-    arcs: int = option(263, "Arcs in all, shared out over the particles.")
-    samples_per_arc: int = option(40, "Samples per arc.")
-    cadence_s: float = option(39.0, "Time between samples [s].")
-    window_s: float = option(16_200.0, "Tracking span of each particle from ejection [s].")
+    particles: int = option(28, "Particles ejected and tracked.", at_least=1)
+    arcs: int = option(263, "Arcs in all, shared out over the particles.", at_least=1)
+    samples_per_arc: int = option(40, "Samples per arc.", at_least=2)
+    cadence_s: float = option(39.0, "Time between samples [s].", above=0)
+    window_s: float = option(16_200.0, "Tracking span of each particle from ejection [s].", above=0)
     area_to_mass_m2_kg: tuple[float, ...] = option(
         (0.02, 0.3),
         "A/m range [m^2/kg] (log-uniform, stratified over the particles): 0.02-0.3 are "
         "spheres of 2.5-0.25 cm diameter at 2 g/cm^3, the sizes reported for Bennu's "
         "particles.",
+        above=0,
     )
     speed_escape_fraction: tuple[float, ...] = option(
-        (0.6, 1.0), "Ejection speed range relative to the surface, in local escape speeds."
+        (0.6, 1.0), "Ejection speed range relative to the surface, in local escape speeds.", above=0
     )
-    cone_deg: float = option(45.0, "Half-angle of the ejection cone about the normal [deg].")
-    escape_radius_rb: float = option(4.0, "Beyond this radius [R_B] a particle has escaped.")
-    distance_au: float = option(0.9, "Heliocentric distance [AU] (flux 1361 W/m^2 at 1 AU).")
-    reflectivity: float = option(1.044, "1 + rho of the cannonball SRP model (1: black body).")
-    sun_latitude_deg: float = option(0.0, "Latitude of the inertially fixed Sun [deg].")
-    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees of the joint fits (LM).")
-    gravity_only_degree: int = option(8, "SH degree of the gravity-only fit.")
-    hidden: tuple[int, ...] = option((16, 16), "Hidden layer sizes of the network.")
+    cone_deg: float = option(
+        45.0, "Half-angle of the ejection cone about the normal [deg].", at_least=0, at_most=90
+    )
+    escape_radius_rb: float = option(
+        4.0, "Beyond this radius [R_B] a particle has escaped.", above=1
+    )
+    distance_au: float = option(
+        0.9, "Heliocentric distance [AU] (flux 1361 W/m^2 at 1 AU).", above=0
+    )
+    reflectivity: float = option(
+        1.044, "1 + rho of the cannonball SRP model (1: black body).", at_least=1, at_most=2
+    )
+    sun_latitude_deg: float = option(
+        0.0, "Latitude of the inertially fixed Sun [deg].", at_least=-90, at_most=90
+    )
+    sh_degrees: tuple[int, ...] = option(
+        (4, 8, 12), "SH degrees of the joint fits (LM).", at_least=2
+    )
+    gravity_only_degree: int = option(8, "SH degree of the gravity-only fit.", at_least=2)
+    hidden: tuple[int, ...] = option((16, 16), "Hidden layer sizes of the network.", at_least=1)
     harmonic: float = harmonic_option("network")
     lm_iterations: int = lm_iterations_option("LM iteration cap of the network fits.")
     paper_network: bool = option(
@@ -98,8 +111,10 @@ class SwarmExperimentConfig(ExperimentConfig):
         f"{PRESETS['network']['adam_steps']} steps) jointly and gravity-only, as rows "
         f"'{PAPER_NETWORK}'.",
     )
-    altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
-    shells_rb: tuple[float, ...] = option((1.05, 1.2), "Evaluation shells [R_B].")
+    altitude_m: float = option(
+        30.0, "Altitude of the surface-following evaluation set [m].", above=0
+    )
+    shells_rb: tuple[float, ...] = option((1.05, 1.2), "Evaluation shells [R_B].", at_least=1.0)
 
     def check(self) -> None:
         if self.interior not in INTERIORS:
@@ -107,10 +122,8 @@ class SwarmExperimentConfig(ExperimentConfig):
         for name in ("area_to_mass_m2_kg", "speed_escape_fraction"):
             if len(getattr(self, name)) != 2:
                 raise InputError(f"--{name.replace('_', '-')} must be two numbers: low,high")
-        if not self.sh_degrees or min(self.sh_degrees) < 2:
+        if not self.sh_degrees:
             raise InputError("--sh-degrees must list degrees of at least 2, e.g. 4,8,12")
-        if self.gravity_only_degree < 2:
-            raise InputError("--gravity-only-degree must be at least 2")
         if self.harmonic < 0:
             raise InputError(f"--harmonic must be >= 0 (0: off), got {self.harmonic}")
         try:

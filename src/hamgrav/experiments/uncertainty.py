@@ -54,21 +54,28 @@ __all__ = ["UncertaintyExperimentConfig", "UncertaintyExperiment"]
 class UncertaintyExperimentConfig(CampaignConfig):
     """The uncertainty experiment: the campaign, the fitted rows and the evaluation sets."""
 
-    sh_degrees: tuple[int, ...] = option((4, 8), "SH degrees fitted (LM).")
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.")
+    sh_degrees: tuple[int, ...] = option((4, 8), "SH degrees fitted (LM).", at_least=2)
+    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     harmonic: float = harmonic_option()
-    shells_rb: tuple[float, ...] = option((1.05, 1.2, 1.5), "Evaluation shells [R_B].")
-    altitude_m: float = option(30.0, "Altitude of the surface-following evaluation set [m].")
+    shells_rb: tuple[float, ...] = option(
+        (1.05, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0
+    )
+    altitude_m: float = option(
+        30.0, "Altitude of the surface-following evaluation set [m].", above=0
+    )
     redraws: int = option(
         2,
         "Noise redraws of the same arcs (same truth, orbits and initialisations), each "
         "fitted again: the refits' spread is the noise response the formal sigma predicts.",
+        at_least=0,
     )
     thresholds: tuple[float, ...] = option(
         (RANK_THRESHOLD, 1e-9, 1e-6),
         "Relative eigenvalue thresholds of the pseudo-inverse: the first gives the headline "
         "table, the others its sensitivity.",
+        above=0,
+        at_most=1,
     )
 
 
