@@ -18,6 +18,23 @@ def test_bodies_lists_synthetic():
     assert result.stdout.splitlines()[0] == "synthetic"
 
 
+@pytest.mark.parametrize(
+    ("command", "shown"),
+    [
+        (["import-oem"], ["Position noise per component [m].", "[deg, ICRF]"]),
+        (["select"], ["Campaign TOML whose [orbits] and [tracking] describe"]),
+        (["experiment", "descent"], ["Evaluation shells [R_B].", "[default: 30.0]"]),
+    ],
+)
+def test_help_keeps_units_in_brackets(command, shown):
+    # brackets in help texts are units and table names, not markup to be swallowed
+    result = runner.invoke(app, [*command, "--help"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    for fragment in shown:
+        assert fragment in text, fragment
+
+
 def test_body_json_synthetic():
     result = runner.invoke(app, ["body", "synthetic", "--json", "--mascons", "200"])
     assert result.exit_code == 0, result.output

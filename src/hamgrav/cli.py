@@ -67,10 +67,12 @@ with _DeferInterrupt():
     from .errors import HamgravError, HamgravWarning, InputError
     from .io.files import check_output
 
+# Help texts are plain text: their units in brackets ([m], [deg]) are not rich markup.
 app = typer.Typer(
     help="Learn small-body gravity fields from tracking arcs.",
     no_args_is_help=True,
     pretty_exceptions_show_locals=False,
+    rich_markup_mode=None,
 )
 console = Console()
 err = Console(stderr=True)
@@ -473,7 +475,12 @@ def fit(
         str | None, typer.Option(help="'shape': constant-density shape prior in the known part.")
     ] = None,
     solver: Annotated[
-        str | None, typer.Option(help="'adam' or 'lm' (default: adam for the network, lm for SH).")
+        str | None,
+        typer.Option(
+            help="'adam' or 'lm' (default: the model's own: LM for network-best and sh:L, Adam "
+            "for network). Naming a solver with network-best fits one network instead of the "
+            "mean of three, and 'adam' leaves out the harmonic penalty."
+        ),
     ] = None,
     weighted: Annotated[
         bool,
@@ -493,8 +500,12 @@ def fit(
             "so far: a continual stage, recorded in the model file's stage history."
         ),
     ] = None,
-    steps: Annotated[int, typer.Option(help="Adam steps (--model network).")] = 1500,
-    learning_rate: Annotated[float, typer.Option(help="Adam peak learning rate.")] = 1e-2,
+    steps: Annotated[
+        int, typer.Option(help="Adam steps (when the solver is Adam; LM ignores it).")
+    ] = 1500,
+    learning_rate: Annotated[
+        float, typer.Option(help="Adam peak learning rate (when the solver is Adam).")
+    ] = 1e-2,
     seed: Annotated[int, typer.Option(help="Seed (initialisation, split, batches).")] = 0,
     resume: Annotated[
         bool, typer.Option(help="Continue an interrupted fit from its checkpoint.")
@@ -1082,7 +1093,9 @@ def select(
 
 # ------------------------------------------------------------------------------ experiments
 experiment_app = typer.Typer(
-    help="Experiments of the paper (write results/<name>/).", no_args_is_help=True
+    help="Experiments of the paper (write results/<name>/).",
+    no_args_is_help=True,
+    rich_markup_mode=None,
 )
 app.add_typer(experiment_app, name="experiment")
 
@@ -1155,7 +1168,7 @@ def _experiment_command(experiment):
                 default=None,
                 annotation=Annotated[
                     str | None if isinstance(default, tuple) else kind | None,
-                    typer.Option(help=escape(f"{f.metadata.get('help', '')} [default: {shown}]")),
+                    typer.Option(help=f"{f.metadata.get('help', '')} [default: {shown}]"),
                 ],
             )
         )
@@ -1168,7 +1181,6 @@ def _experiment_command(experiment):
         ("scheduler", str | None, None, "Address of an existing Dask scheduler."),
     ]
     for name, kind, default, text in runner_params:
-        text = escape(text)
         opt = (
             typer.Option("-o", "--output", help=text)
             if name == "output"
