@@ -360,7 +360,11 @@ def import_oem_command(
         float | None, typer.Option(help="Rotating-frame velocity noise per component [m/s].")
     ] = None,
     epoch: Annotated[
-        str | None, typer.Option(help="TDB epoch of canonical time 0 (ISO; default: first sample).")
+        str | None,
+        typer.Option(
+            help="TDB epoch of canonical time 0 (ISO; default: the epoch in hamgrav's own "
+            "COMMENT lines, else the first sample)."
+        ),
     ] = None,
     origin: Annotated[
         str | None, typer.Option(help="Frame origin in the body mesh's frame, x,y,z [m].")

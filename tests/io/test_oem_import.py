@@ -256,3 +256,27 @@ def test_errors_name_the_problem_and_the_fix(synthetic, exported, tmp_path):
         import_oem([moon], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
     with pytest.raises(InputError, match="--samples must be at least 2"):
         import_oem([path], synthetic, samples=1)
+
+
+def test_a_gap_limit_below_the_sample_step_is_refused(synthetic, tmp_path):
+    # samples 10 s apart: at 5 s every sample is its own run, and a lone sample is no arc
+    path = _gap_file(tmp_path / "gap.oem")
+    with pytest.raises(InputError, match=r"no arc of 2 or more samples .*--max-gap 5 s.*raise"):
+        import_oem([path], synthetic, max_gap_s=5.0, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+
+
+def test_bad_epochs_are_one_line_errors(synthetic, exported):
+    with pytest.raises(InputError) as info:
+        import_oem(exported, synthetic, epoch="notadate")
+    assert "\n" not in str(info.value) and "YYYY-MM-DDTHH:MM:SS" in str(info.value)
+    bad_rotation = RotationModel(**POLE, spin_period_s=synthetic.spin_period_s, epoch="never")
+    with pytest.raises(InputError) as info:
+        import_oem(exported, synthetic, rotation=bad_rotation)
+    assert "\n" not in str(info.value) and "--rotation-epoch" in str(info.value)
+
+
+def test_noise_names_each_source(small_arcs, synthetic, exported):
+    # one level given, the other from hamgrav's COMMENT lines
+    back = import_oem(exported, synthetic, sigma_r_m=0.2)
+    assert back.sigma_r_m == 0.2 and back.sigma_v_m_s == small_arcs.sigma_v_m_s
+    assert back.config["noise_from"] == "--sigma-r and hamgrav comments"

@@ -237,15 +237,17 @@ def import_oem(
     else:
         try:
             t0 = Time(epoch, scale="tdb")
-        except ValueError as exc:
-            raise InputError(f"--epoch {epoch!r} is not an ISO date ({exc})") from None
+        except ValueError:  # astropy's message lists every format it tried
+            raise InputError(
+                f"--epoch {epoch!r} is not an ISO date; give TDB as YYYY-MM-DDTHH:MM:SS"
+            ) from None
     if rotation is not None:
         try:
             rotation_t0 = Time(rotation.epoch, scale="tdb")
-        except ValueError as exc:
+        except ValueError:
             raise InputError(
-                f"rotation epoch {rotation.epoch!r} is not an ISO date ({exc}); give "
-                "--rotation-epoch as YYYY-MM-DDTHH:MM:SS"
+                f"rotation epoch {rotation.epoch!r} is not an ISO date; give "
+                "--rotation-epoch as YYYY-MM-DDTHH:MM:SS (TDB)"
             ) from None
 
     # noise levels
@@ -253,17 +255,25 @@ def import_oem(
     has_cov = all(seg[5] for seg in segments)
     noise_source = "options"
     if sigma_r_m is None or sigma_v_m_s is None:
+        # the one option given, if any: the other level comes from the files
+        given = (
+            "--sigma-r"
+            if sigma_r_m is not None
+            else "--sigma-v"
+            if sigma_v_m_s is not None
+            else None
+        )
         if has_cov and covs:
             mats = np.asarray(covs, dtype=float) * 1e6  # km^2, km^2/s, km^2/s^2 -> SI
             cov_r = math.sqrt(float(np.mean(np.trace(mats[:, :3, :3], axis1=1, axis2=2))) / 3)
             cov_v = math.sqrt(float(np.mean(np.trace(mats[:, 3:, 3:], axis1=1, axis2=2))) / 3)
             sigma_r_m = sigma_r_m if sigma_r_m is not None else cov_r
             sigma_v_m_s = sigma_v_m_s if sigma_v_m_s is not None else cov_v
-            noise_source = "covariance"
+            noise_source = "covariance" if given is None else f"{given} and covariance"
         elif "sigmas" in first:
             sigma_r_m = sigma_r_m if sigma_r_m is not None else first["sigmas"][0]
             sigma_v_m_s = sigma_v_m_s if sigma_v_m_s is not None else first["sigmas"][1]
-            noise_source = "hamgrav comments"
+            noise_source = "hamgrav comments" if given is None else f"{given} and hamgrav comments"
         else:
             raise InputError(
                 "the files give no noise level (no covariance blocks); pass --sigma-r [m] "
@@ -294,6 +304,9 @@ def import_oem(
             raise DatasetError(f"{path}: the epochs of a segment do not increase; fix its order")
         for run in _runs(seconds, max_gap_s):
             n = run.stop - run.start
+            if n < 2:  # a lone sample between gaps is no arc
+                dropped += n
+                continue
             m = n if samples is None else int(samples)
             for start in range(run.start, run.stop - m + 1, m):
                 arcs_t.append(units.to_time(seconds[start : start + m]))
@@ -301,9 +314,11 @@ def import_oem(
                 arc_traj.append(file_index[path])
             dropped += n % m
     if not arcs_t:
+        size = "2 or more" if samples is None else str(samples)
         raise InputError(
-            f"no arc of {samples} samples without a gap in the files; lower --samples or "
-            "raise --max-gap"
+            f"no arc of {size} samples without a gap in the files (--max-gap "
+            f"{'1.5 median steps' if max_gap_s is None else f'{max_gap_s:g} s'}); "
+            + ("raise --max-gap" if samples is None else "lower --samples or raise --max-gap")
         )
     lengths = sorted({len(t) for t in arcs_t})
     if len(lengths) > 1:
