@@ -249,6 +249,12 @@ def test_evaluate_options_checked_first(files, args, message):
         ("families = [[1000.0, 30.0]]", "", "radius_rb must be a finite number in (1, 20]"),
         ("families = [[0.5, 30.0]]", "", "radius_rb must be a finite number in (1, 20]"),
         ("radius_rb = [2.0, 1.5]", "", "must be a range [low, high] of two numbers"),
+        # the range's end as given, not an inner grid value
+        (
+            "count = 2\nradius_rb = [0.1, 0.2]",
+            "",
+            "radius_rb must be a finite number in (1, 20], got 0.1",
+        ),
         ("count = 2", "velocity_noise_ratio = -0.1", "velocity_noise_ratio must be a finite"),
         ("count = 2", "arcs_per_orbit = 2.5", "arcs_per_orbit must be an integer in [1, 10000]"),
         ("count = 2", "sigma_r_m = nan", "sigma_r_m must be a finite number in [0, 10000]"),
@@ -260,6 +266,17 @@ def test_campaign_values_checked(tmp_path, orbits, tracking, message):
     toml.write_text(f'body = "synthetic"\n[orbits]\n{orbits}\n[tracking]\n{tracking}\n')
     _error(runner.invoke(app, ["simulate", str(toml), "-o", str(tmp_path / "a.h5")]), message)
     assert not (tmp_path / "a.h5").exists()
+
+
+def test_campaign_of_an_unknown_body_refused_before_simulating(tmp_path, monkeypatch):
+    (tmp_path / "bodies").mkdir()
+    (tmp_path / "bodies" / "catalogue.json").write_text("{}")
+    monkeypatch.setenv("HAMGRAV_BODIES", str(tmp_path / "bodies"))
+    toml = tmp_path / "c.toml"
+    toml.write_text('body = "vesta"\n[orbits]\ncount = 2\n')
+    result = runner.invoke(app, ["simulate", str(toml), "-o", str(tmp_path / "a.h5")])
+    _error(result, "c.toml: body: unknown body 'vesta'; known: synthetic")
+    assert "simulating" not in result.output and not (tmp_path / "a.h5").exists()
 
 
 def test_more_parameters_than_observations_warns(small_arcs, tmp_path, monkeypatch):

@@ -316,6 +316,10 @@ def test_fit_init_continues_a_model_as_a_stage(small_arcs, tmp_path):
         app, ["fit", str(everything), "--model", "sh:2", "--init", str(stage1), "-o", str(stage2)]
     )
     assert other.exit_code == 2 and "structure" in other.output
+    missing = runner.invoke(
+        app, ["fit", str(everything), *base, "--init", str(tmp_path / "no.h5"), "-o", str(stage2)]
+    )
+    assert missing.exit_code == 2 and "--init: " in missing.output and "no.h5" in missing.output
 
 
 def test_fit_default_is_network_best(arcs_file, tmp_path):

@@ -123,9 +123,9 @@ def test_export_refusals_are_one_line(imported, tmp_path):
     result = runner.invoke(
         app, ["export", str(model), "--format", "json", "-o", str(tmp_path / "x.json")]
     )
-    assert result.exit_code == 2 and "export spherical harmonics with --format icgem" in " ".join(
-        result.output.split()
-    )
+    text = " ".join(result.output.split())
+    assert result.exit_code == 2 and "export spherical harmonics with --format icgem" in text
+    assert "learnable term is SH degree 2;" in text  # the model, not an internal key
     result = runner.invoke(
         app, ["export", str(model), "--format", "gfc", "-o", str(tmp_path / "x")]
     )

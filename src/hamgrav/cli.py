@@ -319,6 +319,8 @@ def simulate(
     ] = None,
 ) -> None:
     """Simulate a tracking campaign and write its arcs (HDF5)."""
+    from .bodies.catalogue import check_body_name
+    from .errors import BodyDataError
     from .io.arcs import save_arcs
     from .io.oem import export_oem_by_trajectory
     from .sim.campaign import load_campaign, simulate_campaign
@@ -327,6 +329,10 @@ def simulate(
     if oem is not None and oem.exists() and not oem.is_dir():
         raise InputError(f"--oem {oem} exists and is not a folder; give a folder path")
     config = load_campaign(campaign)
+    try:  # before the simulation starts
+        check_body_name(config.body)
+    except BodyDataError as exc:
+        raise InputError(f"{campaign}: body: {exc}") from None
     n = len(config.families)
     with _progress() as progress:
         task = progress.add_task(f"simulating {n} orbits", total=n)
@@ -591,7 +597,10 @@ def fit(
     theta0, resume_state, stages, init_digest = None, None, [], None
     if init is not None:
         structure = estimator.build_model(arcs)[0].key()
-        previous = load_model(init, expect_body=arcs.body_name, expect_structure=structure)
+        try:
+            previous = load_model(init, expect_body=arcs.body_name, expect_structure=structure)
+        except HamgravError as exc:  # name the option: the model being continued
+            raise type(exc)(f"--init: {exc}") from None
         if not _same_origin(previous.body_origin_m, arcs.body_origin_m):
             raise InputError(
                 f"--init {init} was fitted in a frame with origin {previous.body_origin_m} m, "

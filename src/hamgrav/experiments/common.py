@@ -73,9 +73,11 @@ class CampaignConfig(ExperimentConfig):
         if not self.contrast > 0:
             raise InputError(f"contrast must be positive, got {self.contrast}")
         if self.interior not in INTERIORS:
-            raise InputError(f"interior must be one of {', '.join(INTERIORS)}")
+            raise InputError(
+                f"interior must be one of {', '.join(INTERIORS)}, got {self.interior!r}"
+            )
         if self.frame not in TRUTH_FRAMES:
-            raise InputError(f"frame must be one of {', '.join(TRUTH_FRAMES)}")
+            raise InputError(f"frame must be one of {', '.join(TRUTH_FRAMES)}, got {self.frame!r}")
         for name in ("radius_rb", "inclination_deg"):
             if len(getattr(self, name)) != 2:
                 raise InputError(f"{name} must be a range of two numbers (low, high)")

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..core.terms import MasconTerm, NeuralPotential, PointMass
+from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
 from ..errors import InputError
 from ..fit.fitted import FittedModel
 from ..units import CanonicalUnits
@@ -61,7 +61,12 @@ def network_document(fitted: FittedModel) -> dict:
     model = fitted.model
     term = model.learnable
     if not isinstance(term, NeuralPotential):
-        kind = "none" if term is None else term.key()
+        if term is None:
+            kind = "none (the known part alone)"
+        elif isinstance(term, SphericalHarmonics):
+            kind = f"SH degree {term.degree}"
+        else:
+            kind = term.describe().get("kind", type(term).__name__)
         raise InputError(
             f"the JSON export is for network models, this one's learnable term is {kind}; "
             "export spherical harmonics with --format icgem or shadr"
