@@ -66,7 +66,7 @@ TERMS = ("network", "sh", "none")
 #: the members' mean guards against the bad member. The best-validation member did as well on
 #: these three draws at the same cost; the mean is kept until more draws tell them apart.
 #: 20 iterations per member rather than 30: on the eight 112-arc Itokawa descent draws the
-#: median miss is 3.4 m (3.0-5.7) against 3.5 m (2.9-5.7), r1.2 0.076-0.146 against
+#: median miss is 3.4 m (3.0-5.7) against 3.5 m (2.8-5.8), r1.2 0.076-0.146 against
 #: 0.065-0.142 (results/descent-itokawa-x8 against results/descent-itokawa-x8-lm30), and the
 #: fit of 112 arcs takes about 24 s on 2 cores instead of 41 s.
 NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=20, rtol=1e-9, lambda0=1e-2, damping_floor=1e-8)
