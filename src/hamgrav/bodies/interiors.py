@@ -8,9 +8,11 @@ sum to 1 (canonical units: the body's GM). Interiors:
 - ``uniform``: constant density.
 - ``head-tail``: the smaller lobe ("head", beyond the neck along the long axis) ``contrast``
   times as dense as the rest, total mass fixed.
-- ``void``: an off-centre cavity holding ``void_fraction`` of the volume, total mass fixed.
-- ``anomalies``: ``count`` dense point masses of ``mass_fraction`` each, buried at ``depth_ratio``
-  of the local surface radius, the background rescaled to keep the total.
+- ``void``: an off-centre cavity holding ``void_fraction`` of the volume, centred at
+  ``void_offset`` of the local surface radius along a seeded direction, total mass fixed.
+- ``anomalies``: ``anomaly_count`` dense point masses of ``anomaly_mass_fraction`` of the total
+  mass each, buried at ``anomaly_depth_ratio`` of the local surface radius, the background
+  rescaled to keep the total.
 
 A :class:`Truth` is an interior together with the body expressed in one frame (when
 recentred), so that shape, surface sets and mascons share it: ``frame="centre-of-mass"`` puts
@@ -216,7 +218,15 @@ def build_truth(
     anomaly_depth_ratio: float = 0.85,
     samples: int = 120_000,
 ) -> Truth:
-    """Build a truth interior for ``body`` (see the module docstring for the interiors)."""
+    """Build a truth interior for ``body`` (see the module docstring for the interiors).
+
+    ``n_mascons`` point masses (k-means of ``samples`` equal-volume samples of the shape),
+    seeded by ``seed``; ``frame`` and ``recentre`` choose the origin. ``contrast``: head over
+    tail density (head-tail); ``void_fraction`` of the volume and ``void_offset`` (a fraction
+    of the local surface radius) place the cavity (void); ``anomaly_count``,
+    ``anomaly_mass_fraction`` (of the total mass, each) and ``anomaly_depth_ratio`` (of the
+    local surface radius) place the anomalies. Lengths are canonical; masses sum to 1.
+    """
     if interior not in INTERIORS:
         raise InputError(f"unknown interior {interior!r}; choose one of {', '.join(INTERIORS)}")
     if frame not in TRUTH_FRAMES:

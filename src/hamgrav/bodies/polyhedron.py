@@ -18,7 +18,8 @@ __all__ = ["polyhedron_potential"]
 
 def polyhedron_potential(body: Body, points: np.ndarray) -> np.ndarray:
     """Potential V > 0 of the body's shape filled at constant density with unit total mass,
-    at ``points`` (n, 3), canonical units (same convention as :mod:`hamgrav.fields`)."""
+    at ``points`` (n, 3) [canonical length]; returns (n,) [canonical potential] (the
+    convention of :mod:`hamgrav.core.fields`)."""
     mesh = body.mesh
     polyhedron = pg.Polyhedron(
         (np.asarray(mesh.vertices), np.asarray(mesh.faces)),

@@ -27,12 +27,14 @@ __all__ = [
 
 
 def central_potential(points: np.ndarray) -> np.ndarray:
-    """1/r of the unit point mass at the origin, at ``points`` (n, 3); returns (n,)."""
+    """1/r of the unit point mass at the origin, at ``points`` (n, 3) [canonical length];
+    returns (n,) [canonical potential]."""
     return 1.0 / np.linalg.norm(np.atleast_2d(points), axis=1)
 
 
 def perturbing_potential(mascons: MasconSet, points: np.ndarray) -> np.ndarray:
-    """V - 1/r of a unit-mass mascon set: what a correction term has to represent."""
+    """V - 1/r of a unit-mass mascon set at ``points`` (n, 3) [canonical length]: what a
+    correction term has to represent; returns (n,) [canonical potential]."""
     return mascon_potential(mascons, points) - central_potential(points)
 
 

@@ -72,7 +72,8 @@ def mascon_potential(mascons: MasconSet, points: np.ndarray) -> np.ndarray:
 
 
 def mascon_acceleration(mascons: MasconSet, points: np.ndarray) -> np.ndarray:
-    """a(q) = grad V = -sum m_i (q - q_i) / |q - q_i|^3 at ``points`` (n, 3); returns (n, 3)."""
+    """a(q) = grad V = -sum m_i (q - q_i) / |q - q_i|^3 at ``points`` (n, 3) [canonical
+    length]; returns (n, 3) [canonical acceleration]."""
     points = np.atleast_2d(np.asarray(points, dtype=float))
     out = np.empty((len(points), 3))
     for sl in _blocks(len(points), len(mascons)):

@@ -134,6 +134,10 @@ class NeuralPotential(Term):
     With ``members`` = K > 1 the term is an ensemble: NN is the mean of K networks of the same
     shape, each with its own parameters (member-major: member 0's block, then member 1's...).
     Initialisation (seeded): Glorot-uniform weights, zero biases; member k uses seed + k.
+
+    Fields: ``hidden`` layer sizes; ``scale`` s, the output's scale [canonical potential,
+    GM / synchronous radius]; ``envelope_radius`` R_w [canonical length, synchronous radii]
+    (hamgrav uses the Brillouin radius); ``members`` K.
     """
 
     hidden: tuple[int, ...] = (24, 24)
@@ -256,6 +260,10 @@ class SphericalHarmonics(Term):
     Conventions of heyoka ``model.sh_gravity_pot`` (Montenbruck & Gill: 4-pi normalised, no
     Condon-Shortley phase). The monopole is the separate central term and degree 1 vanishes
     about the centre of mass, so C00 = C1m = S1m = 0 here.
+
+    Fields: ``degree`` L; ``reference_radius`` R [canonical length, synchronous radii] (hamgrav
+    uses the Brillouin radius); ``mu`` the GM of the expansion [canonical, 1 = the body's].
+    The parameters (the coefficients C_lm, S_lm) are dimensionless.
     """
 
     degree: int
@@ -305,10 +313,11 @@ class SolarRadiationPressure(Term):
     """Cannonball SRP with the Sun fixed in inertial space, so rotating in the body frame.
 
     V = -k c (s_hat(t) . q) with c the area-to-mass coefficient [m^2/kg] (one per trajectory)
-    and k the solar pressure at ``distance_au`` (times ``reflectivity`` (1 + rho)) in canonical
-    acceleration units per m^2/kg, so that the acceleration a = grad V = -k c s_hat pushes
-    away from the Sun. The Sun direction at t = 0 makes angle ``sun_latitude_deg`` with
-    the equator and lies in the x-z plane; the body frame turns at omega = 1.
+    and k = ``pressure_canonical`` the acceleration [canonical] per unit area-to-mass
+    [m^2/kg] (:meth:`pressure_for` gives it from a heliocentric distance [AU] and a
+    reflectivity 1 + rho), so that the acceleration a = grad V = -k c s_hat pushes away from
+    the Sun. The Sun direction at t = 0 makes angle ``sun_latitude_deg`` [deg] with the
+    equator and lies in the x-z plane; the body frame turns at omega = 1.
     """
 
     pressure_canonical: float  # k: acceleration [canonical] per unit area-to-mass [m^2/kg]

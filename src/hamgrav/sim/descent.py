@@ -206,7 +206,8 @@ def tracked_descents(
 
 def miss_statistics(truth: list[Touchdown], model: list[Touchdown], length_m: float) -> dict:
     """Miss distances [m] between predicted and true contact points, over descents that land
-    under both; median, 90th percentile, worst [m], the landed count and the total."""
+    under both; median, 90th percentile, worst [m], the landed count and the total.
+    ``length_m`` is the canonical length unit [m] (the points are canonical)."""
     misses = [
         float(np.linalg.norm(m.point - t.point)) * length_m
         for t, m in zip(truth, model, strict=True)

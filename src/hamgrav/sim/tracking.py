@@ -89,8 +89,13 @@ class OrbitFamily:
 class TrackingConfig:
     """How orbits are tracked (physical units at this edge).
 
+    ``arcs_per_orbit`` arcs of ``samples_per_arc`` samples ``cadence_s`` [s] apart;
     ``window_spin_periods``: length of the tracking window of each orbit, in spin periods; the
-    arcs are spread over it, one per equal slot.
+    arcs are spread over it, one per equal slot. ``sigma_r_m``: position noise per component
+    [m]; the rotating-frame velocity noise is sigma_v = ``velocity_noise_ratio`` omega sigma_r
+    [m/s]. An orbit is redrawn (at most ``max_redraws`` times) when it escapes beyond
+    ``escape_factor`` times its start radius, touches the surface, or dips below
+    ``min_radius_rb`` [R_B] (0: off).
     """
 
     arcs_per_orbit: int = 7
