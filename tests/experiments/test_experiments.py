@@ -205,12 +205,11 @@ def test_descent_with_both_blocks_tiny(tmp_path):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["descent", "--prior", "polyhedron"], "prior must be 'none', 'shape' or 'both'"),
-        (["interiors", "--truths", "marble"], "truths must be among"),
-        (["deep", "--map-degrees", "5"], "map_degrees must be among sh_degrees"),
-        (["deep", "--deep-bins-rb", "0.9,0.5"], "deep_bins_rb must be two or more increasing"),
-        (["deep", "--stages", "19"], "stages must lie between 1 and --orbits (18)"),
-        (["deep", "--descent-span", "all"], "descent_span must be one of end, whole"),
+        (["descent", "--prior", "polyhedron"], "--prior must be 'none', 'shape' or 'both'"),
+        (["interiors", "--truths", "marble"], "--truths must be among"),
+        (["deep", "--deep-bins-rb", "0.9,0.5"], "--deep-bins-rb must be two or more increasing"),
+        (["deep", "--stages", "19"], "--stages must lie between 1 and --orbits (18)"),
+        (["deep", "--descent-span", "all"], "--descent-span must be one of end, whole"),
         (["deep", "--descent-iterations", "-1"], "--descent-iterations must be at least 0, got -1"),
         (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
         (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
@@ -218,6 +217,11 @@ def test_descent_with_both_blocks_tiny(tmp_path):
         (["continual", "--stages", "0"], "--stages must be at least 1, got 0"),
         (["uncertainty", "--thresholds", "5"], "every value of --thresholds must be at most 1"),
         (["swarm", "--hidden", "0"], "every value of --hidden must be at least 1, got 0"),
+        (["descent", "--hidden", ""], "--hidden needs at least one value"),
+        (["descent", "--radius-rb", "1.5,30"], "every value of --radius-rb must be at most 20.0"),
+        (["descent", "--n-mascons", "5"], "--n-mascons must be at least 10, got 5"),
+        (["deep", "--shells-rb", "1.0"], "every value of --shells-rb must be above 1.0"),
+        (["deep", "--map-degrees", "5"], "--map-degrees must be among --sh-degrees"),
     ],
 )
 def test_experiment_rejects_an_unknown_choice(tmp_path, args, message):

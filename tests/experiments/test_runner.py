@@ -139,6 +139,20 @@ def test_dask_settings_refused_before_any_work(tmp_path, settings, message):
     assert not (tmp_path / "x").exists()
 
 
+def test_a_config_built_in_python_is_checked_before_any_cluster_starts(tmp_path, monkeypatch):
+    import dataclasses
+
+    import hamgrav.experiments.runner as runner_module
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a cluster was started for a config that cannot run")
+
+    monkeypatch.setattr(runner_module, "dask_client", no_cluster)
+    config = dataclasses.replace(TINY, hidden=(0,))  # the constructor checks nothing
+    with pytest.raises(InputError, match="every value of hidden must be at least 1, got 0"):
+        run_experiment("descent", config, workers=2, output=tmp_path / "x")
+
+
 def test_unknown_body_refused_before_any_cluster_starts(tmp_path, monkeypatch):
     import hamgrav.experiments.runner as runner_module
 

@@ -269,10 +269,11 @@ def test_bad_epochs_are_one_line_errors(synthetic, exported):
     with pytest.raises(InputError) as info:
         import_oem(exported, synthetic, epoch="notadate")
     assert "\n" not in str(info.value) and "YYYY-MM-DDTHH:MM:SS" in str(info.value)
+    assert str(info.value).startswith("--epoch ('notadate')")
     bad_rotation = RotationModel(**POLE, spin_period_s=synthetic.spin_period_s, epoch="never")
     with pytest.raises(InputError) as info:
         import_oem(exported, synthetic, rotation=bad_rotation)
-    assert "\n" not in str(info.value) and "--rotation-epoch" in str(info.value)
+    assert "\n" not in str(info.value) and str(info.value).startswith("--rotation-epoch ('never')")
 
 
 def test_noise_names_each_source(small_arcs, synthetic, exported):

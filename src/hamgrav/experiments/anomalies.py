@@ -28,6 +28,7 @@ from .common import (
     harmonic_option,
     lm_iterations_option,
     network_best,
+    radius_rb_option,
     sets_for,
     simulate,
 )
@@ -61,16 +62,20 @@ class AnomaliesExperimentConfig(CampaignConfig):
         "the anomalies' offset of the centre of mass stays in the residual, which the paper's "
         "numbers imply) or 'centre-of-mass' of the truth.",
     )
-    radius_rb: tuple[float, ...] = option((1.08, 1.7), "Orbit radius range [R_B].")
-    sh_degrees: tuple[int, ...] = option((4, 8, 12, 16), "SH residual degrees (LM).", at_least=2)
+    radius_rb: tuple[float, ...] = radius_rb_option((1.08, 1.7))
+    sh_degrees: tuple[int, ...] = option(
+        (4, 8, 12, 16), "SH residual degrees (LM).", at_least=2, nonempty=True
+    )
     kaula_degrees: tuple[int, ...] = option(
         (8, 16), "SH degrees also fitted with Kaula scans.", at_least=2
     )
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     harmonic: float = harmonic_option("shape+network")
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     shells_rb: tuple[float, ...] = option(
-        (1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].", at_least=1.0
+        (1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
     )
 
 

@@ -20,9 +20,9 @@ from ..fit.estimator import (
     GravityEstimator,
     preset,
 )
-from ..sim.campaign import Campaign, run_campaign
-from ..sim.tracking import TrackingConfig, orbit_grid
-from .config import ExperimentConfig, option
+from ..sim.campaign import MAX_TRUTH_MASCONS, Campaign, run_campaign
+from ..sim.tracking import MAX_ORBIT_RADIUS_RB, TrackingConfig, orbit_grid
+from .config import ExperimentConfig, label, option
 from .runner import RunContext
 
 __all__ = [
@@ -37,25 +37,47 @@ __all__ = [
 ]
 
 
+def n_mascons_option(default: int = 600, help: str = "Truth mascons."):
+    """The ``n_mascons`` option: the truth's mascon count, within a campaign file's bounds."""
+    return option(default, help, at_least=10, at_most=MAX_TRUTH_MASCONS)
+
+
+def orbits_option(default: int = 16, help: str = "Orbits, on a radius x inclination grid."):
+    """The ``orbits`` option: the orbit count, within a campaign file's bounds."""
+    return option(default, help, at_least=1, at_most=1000)
+
+
+def radius_rb_option(default=(1.2, 2.0), help: str = "Orbit radius range [R_B]."):
+    """The ``radius_rb`` option: start radii [R_B] outside the Brillouin sphere."""
+    return option(default, help, above=1, at_most=MAX_ORBIT_RADIUS_RB)
+
+
+def min_radius_rb_option(
+    default: float = 0.0, help: str = "Redraw orbits dipping below this radius [R_B] (0: off)."
+):
+    """The ``min_radius_rb`` option [R_B] (0: off)."""
+    return option(default, help, at_least=0, at_most=MAX_ORBIT_RADIUS_RB)
+
+
 @dataclass(frozen=True)
 class CampaignConfig(ExperimentConfig):
     """The tracking campaign of an experiment (the paper's 112-arc campaign by default)."""
 
     body: str = option("itokawa", "Body: a catalogue name or 'synthetic'.")
     interior: str = option("head-tail", f"Truth interior: {' | '.join(INTERIORS)}.")
-    n_mascons: int = option(600, "Truth mascons.", at_least=1)
-    orbits: int = option(16, "Orbits, on a radius x inclination grid.", at_least=1)
-    radius_rb: tuple[float, ...] = option((1.2, 2.0), "Orbit radius range [R_B].", above=0)
+    n_mascons: int = n_mascons_option()
+    orbits: int = orbits_option()
+    radius_rb: tuple[float, ...] = radius_rb_option()
     inclination_deg: tuple[float, ...] = option(
         (10.0, 80.0), "Inclination range [deg].", at_least=0, at_most=180
     )
-    arcs_per_orbit: int = option(7, "Arcs per orbit (40 samples at 14 s each).", at_least=1)
+    arcs_per_orbit: int = option(
+        7, "Arcs per orbit (40 samples at 14 s each).", at_least=1, at_most=10_000
+    )
     window_spin_periods: float = option(
-        1.0, "Tracking window of each orbit [spin periods].", above=0
+        1.0, "Tracking window of each orbit [spin periods].", above=0, at_most=100
     )
-    min_radius_rb: float = option(
-        0.0, "Redraw orbits dipping below this radius [R_B] (0: off).", at_least=0
-    )
+    min_radius_rb: float = min_radius_rb_option()
     frame: str = option(
         "centre-of-mass",
         "Origin of the body frame (arcs, central term, SH, evaluation shells): 'centre-of-mass' "
@@ -71,29 +93,36 @@ class CampaignConfig(ExperimentConfig):
 
     def check(self) -> None:
         if not self.contrast > 0:
-            raise InputError(f"contrast must be positive, got {self.contrast}")
+            raise InputError(f"{label('contrast')} must be positive, got {self.contrast}")
         if self.interior not in INTERIORS:
             raise InputError(
-                f"interior must be one of {', '.join(INTERIORS)}, got {self.interior!r}"
+                f"{label('interior')} must be one of {', '.join(INTERIORS)}, got {self.interior!r}"
             )
         if self.frame not in TRUTH_FRAMES:
-            raise InputError(f"frame must be one of {', '.join(TRUTH_FRAMES)}, got {self.frame!r}")
+            raise InputError(
+                f"{label('frame')} must be one of {', '.join(TRUTH_FRAMES)}, got {self.frame!r}"
+            )
         for name in ("radius_rb", "inclination_deg"):
-            if len(getattr(self, name)) != 2:
-                raise InputError(f"{name} must be a range of two numbers (low, high)")
+            low_high = getattr(self, name)
+            if len(low_high) != 2 or low_high[0] > low_high[1]:
+                raise InputError(
+                    f"{label(name)} must be a range of two numbers (low, high), got "
+                    f"{','.join(map(str, low_high))}"
+                )
         # the option of harmonic_option(), in the experiments that have a network-best row
         if getattr(self, "harmonic", 0.0) < 0:
-            raise InputError(f"harmonic must be >= 0 (0: off), got {self.harmonic}")
+            raise InputError(f"{label('harmonic')} must be >= 0 (0: off), got {self.harmonic}")
         # the stages of the experiments that bring the orbits in stages, each at least one orbit
         stages = getattr(self, "stages", 1)
         if not 1 <= stages <= self.orbits:
             raise InputError(
-                f"stages must lie between 1 and --orbits ({self.orbits}), got {stages}"
+                f"{label('stages')} must lie between 1 and {label('orbits')} ({self.orbits}), "
+                f"got {stages}"
             )
         # the options of lm_iterations_option() and warm-stage caps, where an experiment has them
         for name in ("lm_iterations", "warm_iterations", "warm_patience"):
             if getattr(self, name, 1) < 1:
-                raise InputError(f"{name} must be at least 1, got {getattr(self, name)}")
+                raise InputError(f"{label(name)} must be at least 1, got {getattr(self, name)}")
         # the campaign file's checks (orbit radii and count, tracking, truth mascons) apply
         # to an experiment's campaign too, before anything runs
         Campaign.from_dict(self.campaign(0).as_dict(), source="campaign")

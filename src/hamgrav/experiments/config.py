@@ -3,6 +3,7 @@ checked at the edge, and written back into results.json."""
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import math
 import types
@@ -12,11 +13,14 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.files import read_toml
 
-__all__ = ["ExperimentConfig", "option", "COMMAND_LINE"]
+__all__ = ["ExperimentConfig", "option", "label", "COMMAND_LINE"]
 
 #: The ``source`` of a config built from command-line options: its errors name the options
 #: (``--shells-rb``) rather than the keys of a config file (``shells_rb``).
 COMMAND_LINE = "command-line options"
+
+#: Where the config being read comes from (see :func:`label`).
+_SOURCE: contextvars.ContextVar[str] = contextvars.ContextVar("config_source", default="config")
 
 
 def option(
@@ -26,16 +30,19 @@ def option(
     at_least: float | None = None,
     above: float | None = None,
     at_most: float | None = None,
+    nonempty: bool = False,
 ):
     """A config field with its help text (shown by ``hamgrav experiment NAME --help``) and
     optional bounds on its value, or on every item of a list: ``at_least`` and ``at_most``
-    inclusive, ``above`` exclusive, in the field's own unit. The bounds are checked when a
-    config is read, before anything runs."""
+    inclusive, ``above`` exclusive, in the field's own unit; ``nonempty``: a list needs at
+    least one item. The bounds are checked when a config is read, before anything runs."""
     if isinstance(default, list | dict | set):
         raise TypeError("config defaults must be immutable")
     bounds = {"at_least": at_least, "above": above, "at_most": at_most}
-    metadata = {"help": help, "bounds": {k: v for k, v in bounds.items() if v is not None}}
-    return dataclasses.field(default=default, metadata=metadata)
+    bounds = {k: v for k, v in bounds.items() if v is not None}
+    if nonempty:
+        bounds["nonempty"] = True
+    return dataclasses.field(default=default, metadata={"help": help, "bounds": bounds})
 
 
 def _label(name: str, source: str) -> str:
@@ -43,11 +50,20 @@ def _label(name: str, source: str) -> str:
     return f"--{name.replace('_', '-')}" if source == COMMAND_LINE else name
 
 
+def label(name: str) -> str:
+    """How an error raised while a config is read (in ``check``) names field ``name``: its
+    command-line option (``--shells-rb``) when the config comes from the command line, else
+    its key (``shells_rb``)."""
+    return _label(name, _SOURCE.get())
+
+
 def _check_bounds(label: str, value, bounds: dict) -> None:
     """Raise :class:`InputError` when ``value`` (a number or a tuple of them; None passes)
     breaks one of ``bounds`` (see :func:`option`)."""
     if value is None or not bounds:
         return
+    if bounds.get("nonempty") and isinstance(value, tuple) and not value:
+        raise InputError(f"{label} needs at least one value")
     items = value if isinstance(value, tuple) else (value,)
     what = f"every value of {label}" if isinstance(value, tuple) else label
     shown = ",".join(map(str, value)) if isinstance(value, tuple) else value
@@ -125,6 +141,7 @@ class ExperimentConfig:
         unknown = sorted(set(data) - set(types_))
         if unknown:
             raise InputError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(types_)}")
+        token = _SOURCE.set(source)
         try:
             values = {k: _coerce(_label(k, source), types_[k], v) for k, v in data.items()}
             config = cls(**values)
@@ -134,6 +151,8 @@ class ExperimentConfig:
             config.check()
         except InputError as exc:
             raise InputError(f"{source}: {exc}") from None
+        finally:
+            _SOURCE.reset(token)
         return config
 
     @classmethod

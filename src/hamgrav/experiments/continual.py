@@ -40,7 +40,9 @@ class ContinualExperimentConfig(CampaignConfig):
     """The continual campaign: stages of whole orbits; the network and SH 8."""
 
     stages: int = option(4, "Stages (orbits split evenly, in grid order).", at_least=1)
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     harmonic: float = harmonic_option("network-best")
     lm_iterations: int = lm_iterations_option(
         "LM iteration cap of each network member fitted from scratch."

@@ -68,12 +68,16 @@ from .common import (
     errors_of,
     harmonic_option,
     lm_iterations_option,
+    min_radius_rb_option,
+    n_mascons_option,
     network_best,
+    orbits_option,
+    radius_rb_option,
     sets_for,
     simulate,
     warm_gate_option,
 )
-from .config import option
+from .config import label, option
 from .deep_report import (
     bins_figure,
     deep_readme,
@@ -110,13 +114,13 @@ class DeepExperimentConfig(CampaignConfig):
 
     body: str = option("67p", "Body: a catalogue name or 'synthetic'.")
     interior: str = option("uniform", "Truth interior (the paper's 67P truth is homogeneous).")
-    n_mascons: int = option(240, "Truth mascons (the paper's 67P truth has 240).")
-    orbits: int = option(
+    n_mascons: int = n_mascons_option(240, "Truth mascons (the paper's 67P truth has 240).")
+    orbits: int = orbits_option(
         18,
         "Orbits on a radius x inclination grid: 18 = 3 start radii x 6 inclinations (see "
         "--radius-rb and --inclination-deg).",
     )
-    radius_rb: tuple[float, ...] = option(
+    radius_rb: tuple[float, ...] = radius_rb_option(
         (1.1, 2.5),
         "Start radius range of the circular orbits [R_B]: 1.1, 1.8, 2.5 R_B with 18 orbits; "
         "tracked samples then lie at about 1.0-2.6 R_B on 67P.",
@@ -124,7 +128,7 @@ class DeepExperimentConfig(CampaignConfig):
     inclination_deg: tuple[float, ...] = option(
         (10.0, 80.0), "Inclination range [deg]: 10, 24, 38, 52, 66, 80 deg with 18 orbits."
     )
-    min_radius_rb: float = option(
+    min_radius_rb: float = min_radius_rb_option(
         0.96,
         "Redraw orbits dipping below this radius [R_B]: no sample reaches the deep bins.",
     )
@@ -135,14 +139,19 @@ class DeepExperimentConfig(CampaignConfig):
         "previous stage's.",
         at_least=1,
     )
-    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees fitted (LM).", at_least=2)
+    sh_degrees: tuple[int, ...] = option(
+        (4, 8, 12), "SH degrees fitted (LM).", at_least=2, nonempty=True
+    )
     map_degrees: tuple[int, ...] = option(
         (8, 12),
         "SH degrees drawn in the equatorial maps; their error > 1 defines the patches "
         "(must be among --sh-degrees).",
         at_least=2,
+        nonempty=True,
     )
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     harmonic: float = harmonic_option()
     lm_iterations: int = lm_iterations_option(
         "LM iteration cap of each network member at the first stage."
@@ -158,7 +167,8 @@ class DeepExperimentConfig(CampaignConfig):
     shells_rb: tuple[float, ...] = option(
         (1.2, 1.3, 1.4, 1.5, 1.6, 1.7),
         "Exterior evaluation shells [R_B] (the orbit radii); the exterior error is their mean.",
-        at_least=1.0,
+        above=1.0,
+        nonempty=True,
     )
     deep_bins_rb: tuple[float, ...] = option(
         (0.25, 0.45, 0.55, 0.65, 0.75, 0.85, 0.95),
@@ -201,31 +211,25 @@ class DeepExperimentConfig(CampaignConfig):
 
     def check(self) -> None:
         super().check()
-        if not self.sh_degrees:
-            raise InputError("sh_degrees must be one or more degrees of at least 2")
-        missing = sorted(set(self.map_degrees) - set(self.sh_degrees))
-        if not self.map_degrees or missing:
+        degrees = ", ".join(map(str, self.sh_degrees))
+        if set(self.map_degrees) - set(self.sh_degrees):
             raise InputError(
-                f"map_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"
+                f"{label('map_degrees')} must be among {label('sh_degrees')} ({degrees})"
             )
-        if not self.hidden:
-            raise InputError("hidden must be one or more positive layer sizes, e.g. 24,24")
-        if self.lm_iterations < 1 or self.warm_iterations < 1:
-            raise InputError("lm_iterations and warm_iterations must be at least 1")
         if self.descent_span not in DESCENT_SPANS:
             raise InputError(
-                f"descent_span must be one of {', '.join(DESCENT_SPANS)}, got {self.descent_span!r}"
+                f"{label('descent_span')} must be one of {', '.join(DESCENT_SPANS)}, "
+                f"got {self.descent_span!r}"
             )
-        if not self.shells_rb or any(s <= 1.0 for s in self.shells_rb):
-            raise InputError("shells_rb must be one or more radii above 1 R_B (exterior)")
         edges = np.asarray(self.deep_bins_rb, dtype=float)
         if len(edges) < 2 or np.any(np.diff(edges) <= 0) or edges[0] <= 0 or edges[-1] > 1:
             raise InputError(
-                "deep_bins_rb must be two or more increasing edges in (0, 1], e.g. 0.45,0.65,0.95"
+                f"{label('deep_bins_rb')} must be two or more increasing edges in (0, 1], "
+                "e.g. 0.45,0.65,0.95"
             )
         if self.descents and set(self.descent_degrees) - set(self.sh_degrees):
             raise InputError(
-                f"descent_degrees must be among sh_degrees ({', '.join(map(str, self.sh_degrees))})"
+                f"{label('descent_degrees')} must be among {label('sh_degrees')} ({degrees})"
             )
 
 

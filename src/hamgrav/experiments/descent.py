@@ -36,7 +36,7 @@ from .common import (
     sets_for,
     simulate,
 )
-from .config import option
+from .config import label, option
 from .descent_report import descent_readme
 from .runner import Experiment, RunContext, RunOutput, register
 
@@ -78,8 +78,12 @@ class DescentExperimentConfig(CampaignConfig):
     """The descent experiment: the campaign, the fitted rows and the descents."""
 
     descents: int = option(30, "Descents released at 1.3 R_B.", at_least=1)
-    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH degrees fitted (LM).", at_least=2)
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    sh_degrees: tuple[int, ...] = option(
+        (4, 8, 12), "SH degrees fitted (LM).", at_least=2, nonempty=True
+    )
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     adam_steps: int = option(
         1500, "Adam steps of the 'network' row (the paper's protocol).", at_least=1
     )
@@ -103,13 +107,15 @@ class DescentExperimentConfig(CampaignConfig):
         "with both blocks.",
     )
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0
+        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
     )
 
     def check(self) -> None:
         super().check()
         if self.prior not in ("none", "shape", "both"):
-            raise InputError(f"prior must be 'none', 'shape' or 'both', got {self.prior!r}")
+            raise InputError(
+                f"{label('prior')} must be 'none', 'shape' or 'both', got {self.prior!r}"
+            )
         if self.compare_with:
             _comparison(self.compare_with)
 

@@ -30,7 +30,7 @@ from .common import (
     sets_for,
     simulate,
 )
-from .config import option
+from .config import label, option
 from .runner import Experiment, RunContext, RunOutput, format_range, register
 
 __all__ = ["InteriorsExperimentConfig", "InteriorsExperiment", "PAPER"]
@@ -49,15 +49,19 @@ class InteriorsExperimentConfig(CampaignConfig):
     """Truth interiors and the models fitted to each."""
 
     truths: tuple[str, ...] = option(("head-tail", "void"), "Truth interiors, each a campaign.")
-    sh_degrees: tuple[int, ...] = option((4, 8, 12), "SH residual degrees (LM).", at_least=2)
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    sh_degrees: tuple[int, ...] = option(
+        (4, 8, 12), "SH residual degrees (LM).", at_least=2, nonempty=True
+    )
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     harmonic: float = harmonic_option("network-scratch and shape+network")
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     altitude_m: float = option(
         30.0, "Altitude of the surface-following evaluation set [m].", above=0
     )
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0
+        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
     )
 
     def check(self) -> None:
@@ -65,7 +69,8 @@ class InteriorsExperimentConfig(CampaignConfig):
         unknown = [t for t in self.truths if t not in INTERIORS]
         if unknown or not self.truths:
             raise InputError(
-                f"truths must be among {', '.join(INTERIORS)}, got {', '.join(self.truths)}"
+                f"{label('truths')} must be among {', '.join(INTERIORS)}, "
+                f"got {', '.join(self.truths)}"
             )
 
 

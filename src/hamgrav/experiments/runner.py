@@ -211,7 +211,7 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
 
     if scheduler:
         try:
-            client = Client(scheduler)
+            client = Client(scheduler, timeout="10s")
         except (OSError, ValueError, TypeError) as exc:  # unreachable or malformed address
             raise InputError(
                 f"--scheduler {scheduler}: cannot connect ({exc}); start the scheduler or give "
@@ -307,6 +307,9 @@ def run_experiment(
     if isinstance(experiment, str):
         experiment = get_experiment(experiment)
     config = config or experiment.default_config()
+    # a config built in Python has not been through the checks of a config file or the
+    # command line: run them here, before a cluster starts (each worker reads it again)
+    config = experiment.config_type.from_dict(config.as_dict())
     if repeat < 1:
         raise InputError(f"--repeat must be at least 1, got {repeat}")
     if workers and scheduler:

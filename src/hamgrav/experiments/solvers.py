@@ -32,7 +32,9 @@ __all__ = ["SolverExperimentConfig", "SolverExperiment"]
 class SolverExperimentConfig(CampaignConfig):
     """The solver comparison: the campaign, the network, the solvers' budgets, the stages."""
 
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     adam_steps: int = option(1500, "Adam steps.", at_least=1)
     learning_rate: float = option(1e-2, "Adam peak learning rate.", above=0)
     lm_iterations: int = option(20, "LM iterations of the network.")

@@ -33,8 +33,16 @@ from ..bodies.interiors import INTERIORS, build_truth
 from ..errors import InputError
 from ..fit.estimator import PRESETS, preset
 from ..sim.particles import SwarmConfig, simulate_swarm, solar_radiation_pressure
-from .common import errors_of, fit, harmonic_option, lm_iterations_option, network_best, sets_for
-from .config import ExperimentConfig, option
+from .common import (
+    errors_of,
+    fit,
+    harmonic_option,
+    lm_iterations_option,
+    n_mascons_option,
+    network_best,
+    sets_for,
+)
+from .config import ExperimentConfig, label, option
 from .runner import (
     Experiment,
     RunContext,
@@ -67,7 +75,7 @@ class SwarmExperimentConfig(ExperimentConfig):
 
     body: str = option("bennu", "Body: a catalogue name or 'synthetic'.")
     interior: str = option("uniform", f"Truth interior: {' | '.join(INTERIORS)}.")
-    n_mascons: int = option(600, "Truth mascons.")
+    n_mascons: int = n_mascons_option()
     particles: int = option(28, "Particles ejected and tracked.", at_least=1)
     arcs: int = option(263, "Arcs in all, shared out over the particles.", at_least=1)
     samples_per_arc: int = option(40, "Samples per arc.", at_least=2)
@@ -99,10 +107,12 @@ class SwarmExperimentConfig(ExperimentConfig):
         0.0, "Latitude of the inertially fixed Sun [deg].", at_least=-90, at_most=90
     )
     sh_degrees: tuple[int, ...] = option(
-        (4, 8, 12), "SH degrees of the joint fits (LM).", at_least=2
+        (4, 8, 12), "SH degrees of the joint fits (LM).", at_least=2, nonempty=True
     )
     gravity_only_degree: int = option(8, "SH degree of the gravity-only fit.", at_least=2)
-    hidden: tuple[int, ...] = option((16, 16), "Hidden layer sizes of the network.", at_least=1)
+    hidden: tuple[int, ...] = option(
+        (16, 16), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     harmonic: float = harmonic_option("network")
     lm_iterations: int = lm_iterations_option("LM iteration cap of the network fits.")
     paper_network: bool = option(
@@ -114,18 +124,20 @@ class SwarmExperimentConfig(ExperimentConfig):
     altitude_m: float = option(
         30.0, "Altitude of the surface-following evaluation set [m].", above=0
     )
-    shells_rb: tuple[float, ...] = option((1.05, 1.2), "Evaluation shells [R_B].", at_least=1.0)
+    shells_rb: tuple[float, ...] = option(
+        (1.05, 1.2), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
+    )
 
     def check(self) -> None:
         if self.interior not in INTERIORS:
-            raise InputError(f"interior must be one of {', '.join(INTERIORS)}")
+            raise InputError(
+                f"{label('interior')} must be one of {', '.join(INTERIORS)}, got {self.interior!r}"
+            )
         for name in ("area_to_mass_m2_kg", "speed_escape_fraction"):
             if len(getattr(self, name)) != 2:
-                raise InputError(f"--{name.replace('_', '-')} must be two numbers: low,high")
-        if not self.sh_degrees:
-            raise InputError("--sh-degrees must list degrees of at least 2, e.g. 4,8,12")
+                raise InputError(f"{label(name)} must be two numbers: low,high")
         if self.harmonic < 0:
-            raise InputError(f"--harmonic must be >= 0 (0: off), got {self.harmonic}")
+            raise InputError(f"{label('harmonic')} must be >= 0 (0: off), got {self.harmonic}")
         try:
             self.swarm()
         except InputError as exc:

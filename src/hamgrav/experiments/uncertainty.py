@@ -54,12 +54,16 @@ __all__ = ["UncertaintyExperimentConfig", "UncertaintyExperiment"]
 class UncertaintyExperimentConfig(CampaignConfig):
     """The uncertainty experiment: the campaign, the fitted rows and the evaluation sets."""
 
-    sh_degrees: tuple[int, ...] = option((4, 8), "SH degrees fitted (LM).", at_least=2)
-    hidden: tuple[int, ...] = option((24, 24), "Hidden layer sizes of the network.", at_least=1)
+    sh_degrees: tuple[int, ...] = option(
+        (4, 8), "SH degrees fitted (LM).", at_least=2, nonempty=True
+    )
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     harmonic: float = harmonic_option()
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0
+        (1.05, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
     )
     altitude_m: float = option(
         30.0, "Altitude of the surface-following evaluation set [m].", above=0
@@ -76,6 +80,7 @@ class UncertaintyExperimentConfig(CampaignConfig):
         "table, the others its sensitivity.",
         above=0,
         at_most=1,
+        nonempty=True,
     )
 
 

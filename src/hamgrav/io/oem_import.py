@@ -187,6 +187,11 @@ def import_oem(
     for name, value in (("--sigma-r", sigma_r_m), ("--sigma-v", sigma_v_m_s)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise InputError(f"{name} must be a positive number, got {value!r}")
+    rotation_source = (
+        "--rotation-epoch"
+        if rotation is not None
+        else f"the rotation epoch of body {body.name!r} in the catalogue"
+    )
     rotation = rotation if rotation is not None else body.rotation
     units = body.units
     name = body.name
@@ -231,6 +236,7 @@ def import_oem(
             covs = [c.matrix for c in seg.covariances]
             segments.append((path, kind, epochs, pos, vel, covs))
 
+    epoch_source = "--epoch" if epoch else "the epoch in the files' hamgrav COMMENT lines"
     epoch = epoch or first.get("epoch")
     if epoch is None:
         t0 = min((seg[2][0] for seg in segments), key=lambda t: t.jd1 + t.jd2)
@@ -239,15 +245,16 @@ def import_oem(
             t0 = Time(epoch, scale="tdb")
         except ValueError:  # astropy's message lists every format it tried
             raise InputError(
-                f"--epoch {epoch!r} is not an ISO date; give TDB as YYYY-MM-DDTHH:MM:SS"
+                f"{epoch_source} ({epoch!r}) is not an ISO date; give --epoch as TDB "
+                "YYYY-MM-DDTHH:MM:SS"
             ) from None
     if rotation is not None:
         try:
             rotation_t0 = Time(rotation.epoch, scale="tdb")
         except ValueError:
             raise InputError(
-                f"rotation epoch {rotation.epoch!r} is not an ISO date; give "
-                "--rotation-epoch as YYYY-MM-DDTHH:MM:SS (TDB)"
+                f"{rotation_source} ({rotation.epoch!r}) is not an ISO date; give "
+                "--rotation-epoch as TDB YYYY-MM-DDTHH:MM:SS"
             ) from None
 
     # noise levels

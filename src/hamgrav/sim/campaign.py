@@ -122,7 +122,9 @@ class Campaign:
                             f"low <= high, got {value!r}"
                         )
                     ranges[key] = (float(value[0]), float(value[1]))
-                for end in (0, 1):  # the ends as given, before the grid's inner values
+                # both ends must be valid orbits, whatever values the grid takes between
+                # them (the options of an experiment are checked the same way)
+                for end in (0, 1):
                     OrbitFamily(ranges["radius_rb"][end], ranges["inclination_deg"][end])
                 families = orbit_grid(count, ranges["radius_rb"], ranges["inclination_deg"])
         except CampaignError:
