@@ -389,6 +389,10 @@ def test_patience_stops_after_that_many_steps_without_a_gain():
     assert result.best_iteration == 1
     assert "validation cost not lowered by 2 accepted steps" in result.message
     np.testing.assert_allclose(result.params, [1 / 11])
+    # the cost of the returned (best-validation) iterate, not of the last one
+    assert result.params_cost == pytest.approx(0.5 * (1 / 11 - 1) ** 2, rel=1e-12)
+    assert result.cost < result.params_cost
+    assert result.summary()["params_cost"] == result.params_cost
 
 
 def test_a_fit_stopping_at_an_iterate_it_does_not_return_forms_no_normals_there():

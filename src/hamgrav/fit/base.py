@@ -40,6 +40,10 @@ class SolveResult:
             were given, else the last accepted one).
         cost: training cost J = r.r / 2 at the last iterate (Adam: of the last mini-batch, per
             residual component).
+        params_cost: the training arcs' cost J = r.r / 2 at ``params``, without the
+            regulariser (``params`` is not the last iterate when the best-validation iterate
+            is returned); None when the solver did not evaluate it on all training arcs (Adam
+            works on mini-batches).
         initial_cost: training cost at the initial parameters (same normalisation).
         iterations: iterations (LM) or steps (Adam) run.
         best_iteration: iteration of ``params`` (0: the initial point).
@@ -65,6 +69,7 @@ class SolveResult:
     solver: dict = field(default_factory=dict)
     normals: ArcNormals | None = field(default=None, repr=False, compare=False)
     members: tuple[SolveResult | None, ...] = field(default=(), repr=False, compare=False)
+    params_cost: float | None = None
 
     @property
     def data_normal(self) -> np.ndarray | None:
@@ -86,6 +91,7 @@ class SolveResult:
             "best_iteration": int(self.best_iteration),
             "initial_cost": float(self.initial_cost),
             "cost": float(self.cost),
+            "params_cost": None if self.params_cost is None else float(self.params_cost),
             "wall_s": round(float(self.wall_s), 3),
         }
 

@@ -669,9 +669,11 @@ class GravityEstimator:
             if r is not None
             for name, values in r.history.items()
         }
+        cost = problem.cost(params, train)
         result = SolveResult(
             params=params,
-            cost=problem.cost(params, train),
+            cost=cost,
+            params_cost=cost,
             initial_cost=problem.cost(init, train),
             iterations=sum(r.iterations for r in done),
             best_iteration=sum(r.best_iteration for r in done),
@@ -720,6 +722,7 @@ def _nothing_to_fit(problem: ArcProblem) -> SolveResult:
     return SolveResult(
         params=np.zeros(0),
         cost=cost,
+        params_cost=cost,
         initial_cost=cost,
         iterations=0,
         best_iteration=0,

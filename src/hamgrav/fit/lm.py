@@ -192,4 +192,5 @@ class LevenbergMarquardt(Solver):
             message,
             history,
             normals=normals,
+            params_cost=None if normals is None else float(normals.cost),
         )
