@@ -9,7 +9,7 @@ import pytest
 from hamgrav.core.model import Model
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
-from hamgrav.errors import InputError
+from hamgrav.errors import HamgravWarning, InputError
 from hamgrav.fit.base import Outcome, SolveResult
 from hamgrav.fit.covariance import sample_covariance
 from hamgrav.fit.estimator import (
@@ -394,6 +394,58 @@ def test_an_ensemble_outcome_comes_from_its_members(
     np.testing.assert_array_equal(result.params, 0.5 * init)
     assert result.cost == pytest.approx(problem.cost(result.params, train), rel=1e-12)
     assert result.initial_cost == pytest.approx(problem.cost(init, train), rel=1e-12)
+
+
+def test_unfit_members_are_those_far_above_the_best_members_cost():
+    from hamgrav.fit.estimator import UNFIT_MEMBER_FACTOR, unfit_members
+
+    assert UNFIT_MEMBER_FACTOR == 10.0
+    assert unfit_members([1.0, 12.0, None, 9.0]) == {1: 12.0}
+    assert unfit_members([2.0, 20.0]) == {}  # exactly the factor: not above it
+    assert unfit_members([3.0]) == {} and unfit_members([None, None]) == {}
+    assert unfit_members([0.0, 1.0]) == {}  # no scale to compare with
+
+
+def test_an_ensemble_names_a_member_that_did_not_fit(small_arcs, synthetic_truth):
+    est = GravityEstimator("network", hidden=(4,), members=2, body=synthetic_truth.body)
+    model, _ = est.build_model(small_arcs)
+    problem = est._problem(model, small_arcs)
+    init = est.initial_params(model, small_arcs)
+    costs = [1e-4, 5e-2]  # the second member returned a block 500 times costlier
+
+    class Scripted(LevenbergMarquardt):
+        def _iterate(self, problem, theta, *rest):
+            return SolveResult(
+                0.5 * theta, 1e-4, 2.0, 3, 1, Outcome.ITERATION_CAP, "capped",
+                params_cost=costs.pop(0),
+            )  # fmt: skip
+
+    result, _ = est._fit_members(
+        problem, init, Scripted(), np.arange(7), np.array([7, 8]), None, None, None, None, False
+    )
+    assert "member 1 did not fit the training arcs" in result.message
+    assert "500x the best member's" in result.message
+    assert "member 0 did not fit" not in result.message
+
+
+def test_a_fit_warns_of_and_records_a_member_that_did_not_fit(
+    small_arcs, synthetic_truth, monkeypatch
+):
+    costs = [5e-2, 1e-4]
+
+    def scripted(self, problem, theta, *rest):
+        return SolveResult(
+            0.5 * theta, 1e-4, 2.0, 3, 1, Outcome.ITERATION_CAP, "capped", params_cost=costs.pop(0)
+        )
+
+    monkeypatch.setattr(LevenbergMarquardt, "_iterate", scripted)
+    est = GravityEstimator(
+        "network", hidden=(4,), members=2, solver="lm", body=synthetic_truth.body
+    )
+    with pytest.warns(HamgravWarning, match=r"member\(s\) 0 did not fit the training arcs"):
+        est.fit(small_arcs)
+    assert est.diagnostics_["unfit_members"] == [0]
+    assert est.fitted_.solver["diagnostics"]["unfit_members"] == [0]
 
 
 def test_a_warm_member_no_step_improves_keeps_its_block_but_a_scratch_one_fails(
