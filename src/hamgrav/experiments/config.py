@@ -57,15 +57,15 @@ def label(name: str) -> str:
     return _label(name, _SOURCE.get())
 
 
-def _check_bounds(label: str, value, bounds: dict) -> None:
+def _check_bounds(shown_as: str, value, bounds: dict) -> None:
     """Raise :class:`InputError` when ``value`` (a number or a tuple of them; None passes)
     breaks one of ``bounds`` (see :func:`option`)."""
     if value is None or not bounds:
         return
     if bounds.get("nonempty") and isinstance(value, tuple) and not value:
-        raise InputError(f"{label} needs at least one value")
+        raise InputError(f"{shown_as} needs at least one value")
     items = value if isinstance(value, tuple) else (value,)
-    what = f"every value of {label}" if isinstance(value, tuple) else label
+    what = f"every value of {shown_as}" if isinstance(value, tuple) else shown_as
     shown = ",".join(map(str, value)) if isinstance(value, tuple) else value
     for item in items:
         if "at_least" in bounds and not item >= bounds["at_least"]:
