@@ -210,7 +210,13 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
+        from distributed.comm import parse_address
+        from distributed.comm.addressing import parse_host_port
+
         try:
+            # a malformed address is refused before a Client exists: a Client that fails in
+            # its constructor leaves its event loop behind in this process
+            parse_host_port(parse_address(scheduler)[1])
             client = Client(scheduler, timeout="10s")
         except (OSError, ValueError, TypeError) as exc:  # unreachable or malformed address
             raise InputError(
