@@ -86,13 +86,13 @@ UNFIT_MEMBER_FACTOR = 10.0
 #: draws (seeds 0, 2, 4, 6): a warm member's first validation gain comes at accepted step 1-4 when
 #: it matters (to 0.57-0.76 of its start; gains first found at steps 5 and 7 were below 3 %), and a
 #: third of the members never gain in 10 iterations. At 3 the gains found at step 4 were lost: one
-#: draw's warm fit stayed at r1.2 0.117 where the fit from scratch reached 0.079 (patience 4: 0.069,
+#: draw's warm fit stayed at r1.2 0.117 where the fit from scratch reached 0.079 (patience 4: 0.070,
 #: results/continual-itokawa-no-gate). After a member's first validation gain, steps that lower only
 #: the training cost are rejected (``validation_gate``): such a step then costs a propagation
 #: instead of the normal equations, and the member tries a shorter one (it does not count towards
 #: the patience). On the eight Itokawa continual draws the warm / scratch wall is 0.41 (0.36-0.52)
-#: and the final warm / scratch r1.2 0.79 (0.35-1.06), against 0.50 (0.41-0.62) and 0.80
-#: (0.25-0.98) without the gate (results/continual-itokawa, results/continual-itokawa-no-gate).
+#: and the final warm / scratch r1.2 0.79 (0.35-1.06), against 0.48 (0.40-0.70) and 0.81
+#: (0.21-1.04) without the gate (results/continual-itokawa, results/continual-itokawa-no-gate).
 #: Counting the gated trials towards the patience saved a little more time (0.41, 0.35-0.56) but
 #: stopped one draw's members early: its final r1.2 was 1.12 times scratch's. On the eight 67P deep
 #: draws the gate cut a repetition's wall from 720 to 556 s (median, gated trials counted) with the
