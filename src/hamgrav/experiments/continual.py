@@ -1,6 +1,6 @@
 """Continual learning: the campaign arriving in stages, each stage's fit warm-started from the
 previous one, against fitting all arcs so far from scratch at every stage. Warm network stages
-use the preset's warm solver, :data:`~hamgrav.fit.estimator.NETWORK_WARM_SOLVER` (at most 10
+use the preset's warm solver, :data:`~hamgrav.fit.estimator.NETWORK_WARM_SOLVER` (at most 8
 iterations per member, stopping after 4 accepted steps that do not lower the validation cost;
 after a member's first validation gain, only steps that lower the validation cost too).
 

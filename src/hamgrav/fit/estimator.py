@@ -81,7 +81,7 @@ NETWORK_BEST_HARMONIC = 1e-5
 #: initial block): the fit reports it, since the mean carries a third of its field. On the
 #: interiors campaign one such member took the mean's error at 1.05 R_B from about 0.14 to 0.26.
 UNFIT_MEMBER_FACTOR = 10.0
-#: Warm-started continual stages start near the optimum: at most 10 iterations per member, stopping
+#: Warm-started continual stages start near the optimum: at most 8 iterations per member, stopping
 #: after 4 accepted steps that do not lower the validation cost. Per-member traces of four continual
 #: draws (seeds 0, 2, 4, 6): a warm member's first validation gain comes at accepted step 1-4 when
 #: it matters (to 0.57-0.76 of its start; gains first found at steps 5 and 7 were below 3 %), and a
@@ -90,15 +90,18 @@ UNFIT_MEMBER_FACTOR = 10.0
 #: results/continual-itokawa-no-gate). After a member's first validation gain, steps that lower only
 #: the training cost are rejected (``validation_gate``): such a step then costs a propagation
 #: instead of the normal equations, and the member tries a shorter one (it does not count towards
-#: the patience). On the eight Itokawa continual draws the warm / scratch wall is 0.41 (0.36-0.52)
-#: and the final warm / scratch r1.2 0.79 (0.35-1.06), against 0.48 (0.40-0.70) and 0.81
-#: (0.21-1.04) without the gate (results/continual-itokawa, results/continual-itokawa-no-gate).
-#: Counting the gated trials towards the patience saved a little more time (0.41, 0.35-0.56) but
-#: stopped one draw's members early: its final r1.2 was 1.12 times scratch's. On the eight 67P deep
-#: draws the gate cut a repetition's wall from 720 to 556 s (median, gated trials counted) with the
-#: network's errors unchanged. Gating from the first step left one continual draw's warm fit at
-#: r1.2 0.160 from stage 2 on (scratch 0.079).
-NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=10, patience=4, validation_gate=True)
+#: the patience). The cap bounds the warm wall: the fits from scratch take 20 iterations on 1 + 2 +
+#: 3 + 4 stages' arcs (200 stage-iterations), the warm stages at most 20 + 8 x (2 + 3 + 4) = 92
+#: (0.46 of it; 110 and 0.55 with a cap of 10). On the eight Itokawa continual draws the warm /
+#: scratch wall is 0.39 (0.35-0.45) and the final warm / scratch r1.2 0.73 (0.35-1.09), against 0.41
+#: (0.36-0.52) and 0.79 (0.35-1.06) with a cap of 10, and 0.48 (0.40-0.70) and 0.81 (0.21-1.04) with
+#: that cap and no gate (results/continual-itokawa, results/continual-itokawa-no-gate). Counting the
+#: gated trials towards the patience saved a little more time (0.41, 0.35-0.56) but stopped one
+#: draw's members early: its final r1.2 was 1.12 times scratch's. On the eight 67P deep draws the
+#: gate cut a repetition's wall from 720 to 556 s (median, gated trials counted) with the network's
+#: errors unchanged. Gating from the first step left one continual draw's warm fit at r1.2 0.160
+#: from stage 2 on (scratch 0.079).
+NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=8, patience=4, validation_gate=True)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).
 PRESETS: dict[str, dict] = {
