@@ -93,7 +93,7 @@ UNFIT_MEMBER_FACTOR = 10.0
 #: the patience). The cap bounds the warm wall: the fits from scratch take 20 iterations on 1 + 2 +
 #: 3 + 4 stages' arcs (200 stage-iterations), the warm stages at most 20 + 8 x (2 + 3 + 4) = 92
 #: (0.46 of it; 110 and 0.55 with a cap of 10). On the eight Itokawa continual draws the warm /
-#: scratch wall is 0.39 (0.35-0.45) and the final warm / scratch r1.2 0.73 (0.35-1.09), against 0.41
+#: scratch wall is 0.41 (0.35-0.44) and the final warm / scratch r1.2 0.73 (0.35-1.09), against 0.41
 #: (0.36-0.52) and 0.79 (0.35-1.06) with a cap of 10, and 0.48 (0.40-0.70) and 0.81 (0.21-1.04) with
 #: that cap and no gate (results/continual-itokawa, results/continual-itokawa-no-gate). Counting the
 #: gated trials towards the patience saved a little more time (0.41, 0.35-0.56) but stopped one
