@@ -4,6 +4,7 @@ answer: one case per class of the failures found by trying to break hamgrav."""
 import json
 import os
 from dataclasses import replace
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -133,6 +134,41 @@ def test_checkpoint_of_other_arcs_or_steps_is_refused(files, small_arcs, tmp_pat
     _error(result, "belongs to another fit: arcs_sha256")
 
 
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"m": np.zeros(3)}, "does not fit this run"),
+        ({"step": 10**9}, "does not fit this run"),
+        ({"step": -5}, "does not fit this run"),
+        ({"history": "not json"}, "cannot be read"),
+        ({"rng": "{}"}, "cannot be read"),
+    ],
+    ids=["moments", "step-huge", "step-negative", "history", "rng"],
+)
+def test_tampered_adam_state_is_refused(files, tmp_path, monkeypatch, change, message):
+    from hamgrav.io import models
+
+    arcs, _ = files
+    out = tmp_path / "nn.h5"
+    args = ["fit", str(arcs), "--model", "network", "--hidden", "4", "--steps", "30"]
+    real_save = models.save_checkpoint
+    saved = {}
+
+    def save_then_interrupt(path, params, state, identity=None):
+        real_save(path, params, state, identity)
+        saved.update(path=path, params=params, state=state, identity=identity)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(models, "save_checkpoint", save_then_interrupt)
+    assert runner.invoke(app, [*args, "-o", str(out)]).exit_code == 130
+    monkeypatch.setattr(models, "save_checkpoint", real_save)
+    # a checkpoint whose container and identity are sound, its Adam state not
+    state = {**saved["state"], **change}
+    real_save(saved["path"], saved["params"], state, saved["identity"])
+    _error(runner.invoke(app, [*args, "--resume", "-o", str(out)]), message, "--resume")
+    assert not out.exists()
+
+
 def test_evaluate_from_another_folder_uses_the_fits_arcs(files, small_arcs, tmp_path, monkeypatch):
     arcs, _ = files
     fit_dir, other_dir = tmp_path / "fit", tmp_path / "elsewhere"
@@ -202,6 +238,73 @@ def test_outputs_checked_before_the_computation(files, tmp_path, kind):
     )
     if kind == "symlink":
         assert target.is_symlink() and os.readlink(target) == str(model)
+
+
+def test_an_output_that_is_an_input_is_refused(files, tmp_path):
+    arcs, model = files
+    kept = {path: path.read_bytes() for path in (arcs, model)}
+    relative = arcs.parent / "x" / ".." / arcs.name  # the same file by another spelling
+    _error(
+        runner.invoke(app, ["fit", str(arcs), "--model", "sh:2", "-o", str(relative)]),
+        "is also the input ARCS",
+        "give another output path",
+    )
+    _error(
+        runner.invoke(
+            app, ["fit", str(arcs), "--model", "sh:2", "--init", str(model), "-o", str(model)]
+        ),
+        "is also the input --init",
+    )
+    _error(
+        runner.invoke(app, ["export", str(model), "--format", "icgem", "-o", str(model)]),
+        "is also the input MODEL",
+    )
+    pool = tmp_path / "pool.toml"
+    pool.write_text('body = "synthetic"\n[orbits]\ncount = 2\n')
+    _error(
+        runner.invoke(app, ["select", str(model), "--pool", str(pool), "-o", str(pool)]),
+        "is also the input --pool",
+    )
+    assert {path: path.read_bytes() for path in kept} == kept
+
+
+def test_an_unwritable_output_folder_is_refused_first(files, tmp_path, monkeypatch):
+    # a read-only folder, as os.access reports it (root ignores permission bits)
+    arcs, model = files
+    blocked = tmp_path / "blocked"
+    blocked.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: Path(p) != blocked and real_access(p, mode))
+    _error(
+        runner.invoke(app, ["fit", str(arcs), "--model", "sh:2", "-o", str(blocked / "m.h5")]),
+        f"cannot write in folder {blocked}",
+    )
+    _error(
+        runner.invoke(app, ["export", str(model), "--format", "icgem", "-o", str(blocked / "m")]),
+        "cannot write in folder",
+    )
+    # a folder still to be made inside it: checked on its nearest existing parent
+    _error(
+        runner.invoke(app, ["experiment", "descent", "-o", str(blocked / "new" / "run")]),
+        "cannot write in folder",
+    )
+    assert list(blocked.iterdir()) == []
+
+
+def test_noise_free_arcs_have_no_formal_errors(files, small_arcs, tmp_path):
+    _, model = files
+    quiet = save_arcs(replace(small_arcs, sigma_r_m=0.0, sigma_v_m_s=0.0), tmp_path / "quiet.h5")
+    _error(
+        runner.invoke(app, ["evaluate", str(model), "--arcs", str(quiet), "--uncertainty"]),
+        "--uncertainty: the arcs record no tracking noise",
+        "leave out --uncertainty",
+    )
+    out = tmp_path / "sh2.gfc"
+    result = runner.invoke(
+        app, ["export", str(model), "--format", "icgem", "--arcs", str(quiet), "-o", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    assert "no formal errors" in " ".join(result.output.split()) and out.is_file()
 
 
 # ---------------------------------------------------------------- 4. meaningless values
@@ -306,7 +409,7 @@ def test_foreign_hdf5_and_folders_named(tmp_path):
     _error(
         runner.invoke(app, ["fit", str(foreign), "-o", str(tmp_path / "m.h5")]),
         f"{foreign} is an HDF5 file but not a hamgrav arcs file",
-        "pass a file written by 'hamgrav simulate'",
+        "pass a file written by 'hamgrav simulate' or 'hamgrav import-oem'",
     )
     _error(
         runner.invoke(app, ["evaluate", str(tmp_path)]), f"{tmp_path} is a folder; pass the model"

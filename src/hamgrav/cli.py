@@ -65,7 +65,7 @@ with _DeferInterrupt():
     from .bodies.catalogue import load_body
     from .bodies.interiors import DEFAULT_TRUTH_MASCONS
     from .errors import HamgravError, HamgravWarning, InputError
-    from .io.files import check_output
+    from .io.files import check_output, check_writable_folder
 
 # Help texts are plain text: their units in brackets ([m], [deg]) are not rich markup.
 app = typer.Typer(
@@ -223,15 +223,17 @@ def _ints(text: str, name: str, low: int = 1) -> list[int]:
     return [_number(v, name, low, integer=True) for v in values]
 
 
-def _output(path: Path | None, name: str = "-o") -> Path | None:
-    """Check an output file before the work that produces it (see :func:`check_output`)."""
-    return None if path is None else check_output(path, name)
+def _output(path: Path | None, name: str = "-o", **inputs: Path | None) -> Path | None:
+    """Check an output file before the work that produces it (see :func:`check_output`);
+    ``inputs``: the command's input files by name, which the output must not replace."""
+    return None if path is None else check_output(path, name, inputs)
 
 
 def _output_folder(path: Path, name: str) -> Path:
     """An output folder: created if missing; anything else than a folder there is refused."""
     if path.exists() and not path.is_dir():
         raise InputError(f"{name} {path} exists and is not a folder; give a folder path")
+    check_writable_folder(path, name)
     path.mkdir(parents=True, exist_ok=True)
     return path
 
@@ -325,9 +327,11 @@ def simulate(
     from .io.oem import export_oem_by_trajectory
     from .sim.campaign import load_campaign, simulate_campaign
 
-    _output(output)
-    if oem is not None and oem.exists() and not oem.is_dir():
-        raise InputError(f"--oem {oem} exists and is not a folder; give a folder path")
+    _output(output, CAMPAIGN=campaign)
+    if oem is not None:
+        if oem.exists() and not oem.is_dir():
+            raise InputError(f"--oem {oem} exists and is not a folder; give a folder path")
+        check_writable_folder(oem, "--oem")
     config = load_campaign(campaign)
     try:  # before the simulation starts
         check_body_name(config.body)
@@ -399,7 +403,7 @@ def import_oem_command(
     from .io.arcs import save_arcs
     from .io.oem_import import import_oem
 
-    _output(output)
+    _output(output, **{f"FILE {f}": f for f in files})
     body_obj = load_body(body_name)
     rotation = None
     given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
@@ -565,7 +569,7 @@ def fit(
     _number(steps, "--steps", 1, integer=True)
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _number(seed, "--seed", 0, integer=True)
-    _output(output)
+    _output(output, ARCS=arcs_file, **{"--init": init})
     ckpt = checkpoint_path_for(output)
     if resume and not ckpt.exists():
         raise InputError(f"no checkpoint {ckpt} to resume from; run without --resume")
@@ -793,8 +797,14 @@ def evaluate(
     report = None
     if uncertainty:
         from .fit.covariance import parameter_covariance, uncertainty_report
-        from .fit.estimator import fitted_harmonic_penalty
+        from .fit.estimator import fitted_harmonic_penalty, has_noise
 
+        if not has_noise(arcs):
+            raise InputError(
+                "--uncertainty: the arcs record no tracking noise (noise-free arcs), so the "
+                "formal errors are undefined; leave out --uncertainty, or pass --arcs with "
+                "arcs that have a noise level"
+            )
         # a network fitted with the harmonic penalty: its rows in the normal matrix, as
         # the Kaula weight of an SH fit (the fit's own noise response)
         penalty = fitted_harmonic_penalty(fitted, arcs, body)
@@ -971,7 +981,7 @@ def export_command(
         _number(degree, "--degree", 2, integer=True)
         if degree > MAX_SH_DEGREE:
             raise InputError(f"--degree must be at most {MAX_SH_DEGREE}, got {degree}")
-    _output(output)
+    _output(output, MODEL=model_file, **{"--arcs": arcs_file})
     fitted = load_model(model_file)
     if fmt == "json":
         from .io.network_json import write_network_json
@@ -1020,6 +1030,7 @@ def export_command(
 def _formal_covariance(fitted, arcs_file: Path | None):
     """(covariance or None, a note for the user) of an SH model from its arcs."""
     from .fit.covariance import formal_covariance
+    from .fit.estimator import has_noise
     from .io.arcs import load_arcs
 
     if fitted.model.per_trajectory:
@@ -1032,6 +1043,8 @@ def _formal_covariance(fitted, arcs_file: Path | None):
         raise InputError(
             f"--arcs: arcs of body {arcs.body_name!r}, the model is of {fitted.body_name!r}"
         )
+    if not has_noise(arcs):
+        return None, f"no formal errors: {source} records no tracking noise (noise-free arcs)"
     return formal_covariance(fitted, arcs), f"formal errors from {source}"
 
 
@@ -1060,7 +1073,7 @@ def select(
 
     _number(picks, "--picks", 1, integer=True)
     _number(seed, "--seed", 0, integer=True)
-    _output(output)
+    _output(output, MODEL=model_file, **{"--pool": pool})
     fitted = load_model(model_file)
     config = load_campaign(pool)
     if config.body != fitted.body_name:
@@ -1154,6 +1167,7 @@ def _experiment_command(experiment):
         output = runner["output"] or Path(experiment.default_output)
         if output.exists() and not output.is_dir():
             raise InputError(f"-o {output} exists and is not a folder; give a folder path")
+        check_writable_folder(output, "-o")
         _number(runner["seed"], "--seed", 0, integer=True)
         _number(runner["repeat"], "--repeat", 1, integer=True)
         _number(runner["workers"], "--workers", 0, integer=True)
@@ -1258,6 +1272,7 @@ def demo(
     _number(seed, "--seed", 0, integer=True)
     if output.exists() and not output.is_dir():
         raise InputError(f"-o {output} exists and is not a folder; give a folder path")
+    check_writable_folder(output, "-o")
     report, outputs = _run_and_report(
         get_experiment("descent"),
         DescentExperimentConfig.demo(),

@@ -55,8 +55,10 @@ def test_whitened_noise_of_the_true_states_is_white(small_arcs):
 
 
 def test_whitening_needs_positive_noise(small_arcs):
-    with pytest.raises(InputError, match="positive noise levels"):
+    with pytest.raises(InputError, match=r"whitening by the noise \(--weighted\) needs the arcs'"):
         noise_whitening(replace(small_arcs, sigma_v_m_s=0.0))
+    with pytest.raises(InputError, match="sigma_r nan m"):
+        noise_whitening(replace(small_arcs, sigma_r_m=float("nan")))
 
 
 def test_weighted_fit_whitens_the_residuals(small_arcs, synthetic_truth):

@@ -9,7 +9,7 @@ from oem.components import EphemerisSegment, HeaderSection, MetaDataSection
 from scipy.spatial.transform import Rotation
 
 from hamgrav.bodies.rotation import RotationModel
-from hamgrav.errors import DatasetError, InputError
+from hamgrav.errors import DatasetError, HamgravWarning, InputError
 from hamgrav.io.arcs import load_arcs, save_arcs
 from hamgrav.io.oem import export_oem_by_trajectory
 from hamgrav.io.oem_import import import_oem
@@ -36,6 +36,8 @@ def test_round_trip_of_own_export(small_arcs, synthetic, exported, tmp_path):
     assert_same_arcs(back, small_arcs)
     # the frame, canonical time 0 and the noise come from hamgrav's COMMENT lines
     assert back.body_origin_m == small_arcs.body_origin_m
+    assert back.body_name == small_arcs.body_name
+    assert (back.gm_m3_s2, back.spin_period_s) == (small_arcs.gm_m3_s2, small_arcs.spin_period_s)
     assert (back.sigma_r_m, back.sigma_v_m_s) == (small_arcs.sigma_r_m, small_arcs.sigma_v_m_s)
     assert back.trajectory_kind == small_arcs.trajectory_kind
     assert back.config["noise_from"] == "hamgrav comments"
@@ -139,9 +141,12 @@ def test_inertial_frame_with_rotation_model_gives_the_body_fixed_arcs(
         paths.append(_write(tmp_path / f"icrf-{traj}.oem", segments))
 
     rotation = RotationModel(**POLE, spin_period_s=synthetic.spin_period_s, epoch=rot_epoch.isot)
-    back = import_oem(
-        paths, synthetic, rotation=rotation, epoch=EPOCH, sigma_r_m=0.05, sigma_v_m_s=1e-6
-    )
+    # ERFA's multi-line warnings about UTC in 2030 come out as one line
+    with pytest.warns(HamgravWarning, match="UTC epochs beyond the leap-second table") as seen:
+        back = import_oem(
+            paths, synthetic, rotation=rotation, epoch=EPOCH, sigma_r_m=0.05, sigma_v_m_s=1e-6
+        )
+    assert [w.category for w in seen] == [HamgravWarning]
     assert_same_arcs(back, small_arcs)
     assert back.config["frames"] == ["inertial"]
     assert back.config["rotation"]["pole_dec_deg"] == POLE["pole_dec_deg"]
@@ -176,12 +181,14 @@ def test_rotation_model_against_hand_cases():
     np.testing.assert_allclose(p_b, rot.omega_rad_s * np.array([[-2.0, 1.0, 0.0]]), atol=1e-15)
 
 
-def _gap_file(path, covariance=False, second=10):
+def _gap_file(path, covariance=False, second=10, scale=1.0):
+    """An OEM file of one body-fixed run with a 420 s gap, 0.87 km from the synthetic body's
+    centre (about 2.9 R_B) times ``scale``."""
     base = dt.datetime(2030, 1, 1)
     steps = [10.0 * k for k in range(10)] + [500.0 + 10.0 * k for k in range(second)]
     epochs = [base + dt.timedelta(seconds=s) for s in steps]
     rng = np.random.default_rng(3)
-    pos = 0.5 + 0.01 * rng.normal(size=(len(steps), 3))
+    pos = scale * (0.5 + 0.01 * rng.normal(size=(len(steps), 3)))
     vel = 1e-5 * rng.normal(size=(len(steps), 3))
     meta = {
         "OBJECT_NAME": "probe",
@@ -242,6 +249,10 @@ def test_errors_name_the_problem_and_the_fix(synthetic, exported, tmp_path):
         import_oem([uneven], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
     with pytest.raises(InputError, match="OEM file not found"):
         import_oem([tmp_path / "none.oem"], synthetic)
+    with pytest.raises(InputError, match="is a folder; give the OEM files in it"):
+        import_oem([tmp_path], synthetic)
+    with pytest.raises(InputError, match="gap.oem is given twice .*give it once"):
+        import_oem([path, tmp_path / "." / "gap.oem"], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
     bad = tmp_path / "bad.oem"
     bad.write_text("CCSDS_OEM_VERS = 2.0\nnonsense\n")
     with pytest.raises(DatasetError, match="bad.oem is not a readable CCSDS OEM"):
@@ -281,3 +292,41 @@ def test_noise_names_each_source(small_arcs, synthetic, exported):
     back = import_oem(exported, synthetic, sigma_r_m=0.2)
     assert back.sigma_r_m == 0.2 and back.sigma_v_m_s == small_arcs.sigma_v_m_s
     assert back.config["noise_from"] == "--sigma-r and hamgrav comments"
+
+
+def test_noise_levels_from_the_files_must_be_positive(synthetic, exported, tmp_path):
+    path = _gap_file(tmp_path / "cov.oem", covariance=True)
+    negative = tmp_path / "negative.oem"
+    negative.write_text(path.read_text().replace("9.000000e-06", "-9.000000e-06", 1))
+    with pytest.raises(InputError, match="negative.oem: a covariance block has a negative"):
+        import_oem([negative], synthetic)
+    text = exported[0].read_text()
+    assert "sigma_r 0.05 m" in text
+    silent = tmp_path / "silent.oem"
+    silent.write_text(text.replace("sigma_r 0.05 m", "sigma_r 0 m"))
+    with pytest.raises(InputError, match="hamgrav comments: sigma_r is 0.0 m.*pass --sigma-r"):
+        import_oem([silent], synthetic)
+    # the level given as an option replaces the file's
+    assert import_oem([silent], synthetic, sigma_r_m=0.1).sigma_r_m == 0.1
+
+
+def test_samples_inside_the_body_or_far_away_point_at_the_units(synthetic, tmp_path):
+    # metres read as kilometres the other way: 0.87 m from the centre, inside the body
+    inside = _gap_file(tmp_path / "inside.oem", scale=1e-3)
+    with pytest.raises(DatasetError, match="20 samples lie inside the shape of 'synthetic'"):
+        import_oem([inside], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+    far = _gap_file(tmp_path / "far.oem", scale=200.0)  # 173 km: 580 R_B
+    with pytest.warns(HamgravWarning, match="closest sample is 5.*Brillouin radii.*units"):
+        import_oem([far], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+
+
+def test_samples_on_the_surface_are_tracking(synthetic):
+    # touchdowns and ejection points lie on the surface, which the facets only approximate
+    from hamgrav.io.oem_import import _check_positions
+
+    units = synthetic.units
+    surface = np.asarray(synthetic.mesh_m.vertices)[::25] / units.length_m
+    centres = np.asarray(synthetic.mesh_m.triangles_center)[::50] / units.length_m
+    _check_positions(np.concatenate([surface, centres]), synthetic, np.zeros(3), units, ["s"])
+    with pytest.raises(DatasetError, match="lie inside the shape"):
+        _check_positions(0.9 * centres, synthetic, np.zeros(3), units, ["s"])

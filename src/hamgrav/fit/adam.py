@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import DatasetError
 from .base import Outcome, Solver, SolveResult
 
 __all__ = ["Adam"]
@@ -66,18 +67,39 @@ class Adam(Solver):
         train_cost = np.nan
         first = 1
         if resume is not None:
-            first = int(resume["step"]) + 1
-            m, v = np.asarray(resume["m"]), np.asarray(resume["v"])
-            best = (
-                float(resume["best_val"]),
-                np.asarray(resume["best_theta"]),
-                int(resume["best_step"]),
-            )
-            order, cursor = np.asarray(resume["order"]), int(resume["cursor"])
-            rng.bit_generator.state = json.loads(resume["rng"])
-            history = {k: list(v_) for k, v_ in json.loads(resume["history"]).items()}
-            train_cost = float(resume["train_cost"])
-            initial_cost = float(resume.get("initial_cost", np.nan))
+            try:
+                first = int(resume["step"]) + 1
+                m, v = np.asarray(resume["m"], float), np.asarray(resume["v"], float)
+                best = (
+                    float(resume["best_val"]),
+                    np.asarray(resume["best_theta"], float),
+                    int(resume["best_step"]),
+                )
+                order, cursor = np.asarray(resume["order"]), int(resume["cursor"])
+                rng.bit_generator.state = json.loads(resume["rng"])
+                history = {k: list(v_) for k, v_ in json.loads(resume["history"]).items()}
+                train_cost = float(resume["train_cost"])
+                initial_cost = float(resume.get("initial_cost", np.nan))
+                consistent = (
+                    2 <= first <= self.steps + 1
+                    and m.shape == v.shape == best[1].shape == theta.shape
+                    and np.all(np.isfinite(m))
+                    and np.all(np.isfinite(v))
+                    and np.all(v >= 0)
+                    and order.dtype.kind in "iu"
+                    and set(order.tolist()) <= set(np.asarray(train).tolist())
+                    and cursor >= 0  # past the end: the next step draws a new order
+                )
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+                raise DatasetError(
+                    f"the checkpoint's Adam state cannot be read ({exc}); remove the "
+                    "checkpoint and fit again without --resume"
+                ) from None
+            if not consistent:
+                raise DatasetError(
+                    "the checkpoint's Adam state does not fit this run (its step, moments or "
+                    "batch order); remove the checkpoint and fit again without --resume"
+                )
         for step in range(first, self.steps + 1):
             if cursor + self.batch_size > len(order):
                 order, cursor = rng.permutation(train), 0

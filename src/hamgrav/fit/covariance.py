@@ -80,7 +80,7 @@ from ..core.terms import NeuralPotential, SphericalHarmonics
 from ..core.uncertainty import potential_sigma
 from ..errors import InputError, PropagationError
 from ..units import CanonicalUnits
-from .estimator import noise_sigmas, noise_whitening, validation_split
+from .estimator import noise_whitening, require_noise, validation_split
 from .fitted import FittedModel
 from .lm import kaula_diagonal
 
@@ -292,7 +292,7 @@ def normal_system(
         train = training_arcs(fitted, arcs)
     idx_all = np.arange(arcs.n_arcs) if train is None else np.asarray(train, dtype=int)
     n_b, n_m = member_model.n_learn, len(blocks)
-    sigmas = noise_sigmas(arcs)
+    sigmas = require_noise(arcs, "the formal covariance")
     # the fit's whitening W of each sample's residual (the identity unweighted) and
     # W^2 = W^T W, the weight of the fit's cost r^T W^2 r
     w = noise_whitening(arcs) if fitted.solver.get("weighted", False) else np.eye(6)

@@ -12,6 +12,7 @@ ends with the outcome "no improvement".
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -153,6 +154,24 @@ def noise_sigmas(arcs: Arcs) -> np.ndarray:
     return np.array([sr, sr, sr, sv, sv, sv])
 
 
+def has_noise(arcs: Arcs) -> bool:
+    """Whether the arcs record positive, finite noise levels (noise-free simulated arcs
+    do not: sigma_r = sigma_v = 0)."""
+    return all(math.isfinite(v) and v > 0 for v in (arcs.sigma_r_m, arcs.sigma_v_m_s))
+
+
+def require_noise(arcs: Arcs, what: str) -> np.ndarray:
+    """:func:`noise_sigmas` of arcs that record their tracking noise; raises
+    :class:`InputError` naming ``what`` needs it otherwise."""
+    if not has_noise(arcs):
+        raise InputError(
+            f"{what} needs the arcs' tracking noise, but they record sigma_r "
+            f"{arcs.sigma_r_m!r} m and sigma_v {arcs.sigma_v_m_s!r} m/s (noise-free arcs); "
+            "use arcs with a noise level"
+        )
+    return noise_sigmas(arcs)
+
+
 def noise_whitening(arcs: Arcs) -> np.ndarray:
     """The whitening W (6, 6) of one canonical (q, p) sample's noise: W r is the sample's
     residual in position and rotating-frame velocity, (q, v = p - omega x q), divided by
@@ -162,12 +181,7 @@ def noise_whitening(arcs: Arcs) -> np.ndarray:
     Units: rows 0-2 per canonical length, rows 3-5 per canonical velocity (W r is
     dimensionless). The weighted fit's residuals are W r sample by sample; raises
     :class:`InputError` unless both noise levels are positive."""
-    sigmas = noise_sigmas(arcs)
-    if not np.all(sigmas > 0):
-        raise InputError(
-            f"whitening by the noise needs positive noise levels, got sigma_r "
-            f"{arcs.sigma_r_m!r} m and sigma_v {arcs.sigma_v_m_s!r} m/s"
-        )
+    sigmas = require_noise(arcs, "whitening by the noise (--weighted)")
     states = np.eye(6)  # row k: the state e_k; its (q, v) is column k of the map (q, p) -> (q, v)
     qv = np.concatenate([states[:, :3], momentum_to_velocity(states[:, :3], states[:, 3:])], 1)
     return qv.T / sigmas[:, None]

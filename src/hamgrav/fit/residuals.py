@@ -27,7 +27,7 @@ from ..core.problem import ArcProblem
 from ..core.propagation import state_transition
 from ..units import CanonicalUnits, momentum_to_velocity
 from .covariance import sample_covariance
-from .estimator import noise_sigmas
+from .estimator import require_noise
 from .fitted import FittedModel
 
 __all__ = ["residual_report", "field_summary"]
@@ -63,7 +63,7 @@ def residual_report(fitted: FittedModel, arcs: Arcs) -> dict:
 
     runtime = problem._runtime_params(params, np.arange(arcs.n_arcs))
     phi = state_transition(fitted.model, arcs.states[:, 0], arcs.times, runtime)[:, 1:]
-    sigmas = noise_sigmas(arcs)
+    sigmas = require_noise(arcs, "the residuals against the noise")
     s_sample = sample_covariance(sigmas[0], sigmas[3])
     m = arcs.samples_per_arc - 1
     white = np.kron(np.eye(m), s_sample)

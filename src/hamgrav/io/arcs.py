@@ -37,7 +37,7 @@ ARCS_FORMAT_VERSION = 1
 #: 20 Brillouin radii is below 20 synchronous radii for every catalogued body; a thousand is
 #: far beyond any tracking and below where propagation breaks down.
 MAX_STATE = 1e3
-_FIX = "regenerate it with 'hamgrav simulate'"
+_FIX = "regenerate it with 'hamgrav simulate' or 'hamgrav import-oem'"
 
 
 def save_arcs(arcs: Arcs, path: str | os.PathLike) -> Path:
@@ -138,12 +138,13 @@ def _read(f, path: Path) -> Arcs:
     if fmt is None:
         raise DatasetError(
             f"{path} is an HDF5 file but not a hamgrav arcs file (it has no 'format' "
-            "attribute); pass a file written by 'hamgrav simulate'"
+            "attribute); pass a file written by 'hamgrav simulate' or 'hamgrav import-oem'"
         )
     fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt)
     if fmt != ARCS_FORMAT:
         raise DatasetError(
-            f"not a hamgrav arcs file (format {fmt!r}); pass a file written by 'hamgrav simulate'"
+            f"not a hamgrav arcs file (format {fmt!r}); pass a file written by "
+            "'hamgrav simulate' or 'hamgrav import-oem'"
         )
     version = int(_attr(f, "format_version"))
     if version > ARCS_FORMAT_VERSION:

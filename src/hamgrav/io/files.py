@@ -10,18 +10,25 @@ from __future__ import annotations
 import os
 import tempfile
 import tomllib
+from collections.abc import Mapping
 from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import DatasetError, InputError
 
-__all__ = ["atomic_path", "check_output", "read_toml"]
+__all__ = ["atomic_path", "check_output", "check_writable_folder", "read_toml", "same_file"]
 
 
-def check_output(path: str | os.PathLike, what: str = "output") -> Path:
+def check_output(
+    path: str | os.PathLike,
+    what: str = "output",
+    inputs: Mapping[str, str | os.PathLike | None] | None = None,
+) -> Path:
     """Refuse an output path that cannot be written atomically, before any work: its folder
-    must exist, and anything already at ``path`` must be a regular file (replaced). Raises
-    :class:`InputError` naming ``what`` (e.g. an option) and the fix."""
+    must exist and be writable, anything already at ``path`` must be a regular file
+    (replaced), and it must not be one of the command's ``inputs`` (name -> path; None
+    entries are skipped), which the output would replace. Raises :class:`InputError` naming
+    ``what`` (e.g. an option) and the fix."""
     path = Path(path)
     if path.is_symlink():
         raise InputError(
@@ -36,11 +43,47 @@ def check_output(path: str | os.PathLike, what: str = "output") -> Path:
             f"{what} {path} exists and is not a regular file (a device, FIFO or socket); "
             "give the path of a regular file"
         )
+    for name, source in (inputs or {}).items():
+        if source is not None and same_file(path, source):
+            raise InputError(
+                f"{what} {path} is also the input {name}; writing it would replace that "
+                "file: give another output path"
+            )
     if not path.parent.is_dir():
+        if path.parent.exists():
+            raise InputError(
+                f"{what} {path}: {path.parent} is a file, not a folder; give a path in a folder"
+            )
         raise InputError(
             f"{what}: folder {path.parent} does not exist; create it first (mkdir -p {path.parent})"
         )
+    check_writable_folder(path.parent, what)
     return path
+
+
+def check_writable_folder(folder: str | os.PathLike, what: str = "output") -> None:
+    """Refuse a folder hamgrav cannot create files in (read-only file system, permissions),
+    or, when ``folder`` does not exist yet, whose nearest existing parent is so."""
+    folder = Path(folder)
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing.is_dir() and not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(
+            f"{what}: cannot write in folder {existing} (read-only or no permission); "
+            "choose another folder"
+        )
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether paths ``a`` and ``b`` name the same file (links and relative paths resolved)."""
+    a, b = Path(a), Path(b)
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
 
 
 @contextmanager

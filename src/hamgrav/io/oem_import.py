@@ -37,6 +37,7 @@ import math
 import os
 import re
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -46,8 +47,9 @@ from ..bodies.catalogue import Body
 from ..bodies.rotation import RotationModel
 from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
-from ..errors import DatasetError, InputError
+from ..errors import DatasetError, HamgravWarning, InputError
 from .arcs import MAX_STATE
+from .files import same_file
 from .oem import REF_FRAME as HAMGRAV_FRAME
 
 __all__ = ["import_oem", "BODY_FIXED_FRAMES", "INERTIAL_FRAMES"]
@@ -126,6 +128,30 @@ def _frame_kind(frame: str, body_name: str, path: Path) -> str:
     )
 
 
+@contextmanager
+def _erfa_warnings_in_one_line():
+    """ERFA's multi-line "dubious year" warnings (UTC epochs beyond the leap-second table,
+    one per conversion) become one line; other warnings pass through."""
+    from erfa import ErfaWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    dubious = False
+    for w in caught:
+        if issubclass(w.category, ErfaWarning):
+            dubious = True
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if dubious:
+        warnings.warn(
+            "UTC epochs beyond the leap-second table this astropy knows: converted to TDB "
+            "with no leap second after its end",
+            HamgravWarning,
+            stacklevel=3,
+        )
+
+
 def _iso(t: Time) -> str:
     """A TDB Time as an ISO string to the microsecond."""
     t = t.tdb.copy()
@@ -144,6 +170,7 @@ def _runs(seconds: np.ndarray, max_gap_s: float | None) -> list[slice]:
     return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
+@_erfa_warnings_in_one_line()
 def import_oem(
     paths,
     body: Body,
@@ -196,9 +223,17 @@ def import_oem(
     units = body.units
     name = body.name
 
-    for path in paths:
+    for k, path in enumerate(paths):
+        if path.is_dir():
+            raise InputError(f"{path} is a folder; give the OEM files in it (e.g. {path}/*.oem)")
         if not path.is_file():
             raise InputError(f"OEM file not found: {path}")
+        for other in paths[:k]:
+            if same_file(path, other):
+                raise InputError(
+                    f"OEM file {path} is given twice (also as {other}); each file is one "
+                    "trajectory: give it once"
+                )
     comments = [_hamgrav_comments(p) for p in paths]
     for path, c in zip(paths, comments, strict=True):
         for key, have in (("gm_m3_s2", body.gm_m3_s2), ("spin_period_s", body.spin_period_s)):
@@ -271,6 +306,13 @@ def import_oem(
             else None
         )
         if has_cov and covs:
+            for seg in segments:
+                diagonals = np.diagonal(np.asarray(seg[5], dtype=float), axis1=1, axis2=2)
+                if not np.all(np.isfinite(diagonals)) or np.any(diagonals < 0):
+                    raise InputError(
+                        f"{seg[0]}: a covariance block has a negative or non-finite variance "
+                        "on its diagonal; fix the file, or pass --sigma-r [m] and --sigma-v [m/s]"
+                    )
             mats = np.asarray(covs, dtype=float) * 1e6  # km^2, km^2/s, km^2/s^2 -> SI
             cov_r = math.sqrt(float(np.mean(np.trace(mats[:, :3, :3], axis1=1, axis2=2))) / 3)
             cov_v = math.sqrt(float(np.mean(np.trace(mats[:, 3:, 3:], axis1=1, axis2=2))) / 3)
@@ -285,6 +327,13 @@ def import_oem(
             raise InputError(
                 "the files give no noise level (no covariance blocks); pass --sigma-r [m] "
                 "and --sigma-v [m/s]"
+            )
+
+    for level, value, unit in (("sigma_r", sigma_r_m, "m"), ("sigma_v", sigma_v_m_s, "m/s")):
+        if not (math.isfinite(float(value)) and float(value) > 0):
+            raise InputError(
+                f"noise from {noise_source}: {level} is {value!r} {unit}, but tracking data need "
+                f"a positive noise level; pass --{level.replace('_', '-')} [{unit}]"
             )
 
     # states in the body-fixed frame, canonical; arcs cut from gap-free runs
@@ -339,6 +388,7 @@ def import_oem(
     origin = origin_m if origin_m is not None else first.get("origin_m", (0.0, 0.0, 0.0))
     if np.shape(origin) != (3,) or not np.all(np.isfinite(np.asarray(origin, dtype=float))):
         raise InputError(f"--origin must be three finite numbers [m], got {origin!r}")
+    _check_positions(states[..., :3], body, np.asarray(origin, dtype=float), units, paths)
     config = {
         "source": "ccsds-oem",
         "files": [str(p) for p in paths],
@@ -369,6 +419,46 @@ def import_oem(
         seed=0,
         config=config,
     )
+
+
+#: Closest sample beyond this many Brillouin radii: likely a unit error (metres read as km).
+FAR_RB = 100.0
+#: Samples deeper inside the shape than this fraction of R_B are refused (the surface itself,
+#: e.g. a touchdown or an ejection point, is not: its facets only approximate the body).
+INSIDE_TOLERANCE_RB = 0.01
+
+
+def _check_positions(q, body, origin_m, units, paths) -> None:
+    """Refuse samples inside the body's shape and warn when every sample is far from it:
+    both mean the file's units, CENTER_NAME or frame origin are not what it says. ``q``:
+    positions (..., 3), canonical, about the frame origin ``origin_m`` [m, mesh frame]."""
+    import trimesh
+
+    vertices = (np.asarray(body.mesh_m.vertices) - origin_m) / units.length_m
+    reach = float(np.linalg.norm(vertices, axis=1).max())
+    points = np.asarray(q, dtype=float).reshape(-1, 3)
+    radius = np.linalg.norm(points, axis=1)
+    near = points[radius < reach]  # only these can be inside
+    if len(near):
+        mesh = trimesh.Trimesh(vertices, np.asarray(body.mesh_m.faces), process=False)
+        inside = mesh.contains(near)
+        if np.any(inside):  # deeper than 1 % of R_B: a sample on the surface (touchdown) is fine
+            depth = trimesh.proximity.signed_distance(mesh, near[inside])
+            inside[np.flatnonzero(inside)] = depth > INSIDE_TOLERANCE_RB * reach
+        if np.any(inside):
+            closest = float(np.linalg.norm(near[inside], axis=1).min()) * units.length_m
+            raise DatasetError(
+                f"{', '.join(str(p) for p in paths)}: {int(inside.sum())} samples lie inside the "
+                f"shape of {body.name!r} (the innermost {closest:.4g} m from the frame origin); "
+                "check the files' units (km, km/s), CENTER_NAME and --origin"
+            )
+    if radius.min() > FAR_RB * reach:
+        warnings.warn(
+            f"the closest sample is {radius.min() / reach:.3g} Brillouin radii from "
+            f"{body.name!r}: check the files' units (km, km/s)",
+            HamgravWarning,
+            stacklevel=3,
+        )
 
 
 def _kind_of(message) -> str:
