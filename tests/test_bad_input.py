@@ -68,6 +68,33 @@ def test_nan_parameter_is_refused_not_evaluated(files, tmp_path, old_hdf5):
     assert "non-finite values" in text and "fit the model again" in text
 
 
+def test_old_model_files_recording_other_arcs_or_body_are_refused(files, tmp_path, old_hdf5):
+    # files without the checksum (older hamgrav) are read as they are: their values speak
+    arcs, model = files
+    odd = tmp_path / "odd.h5"
+    odd.write_bytes(model.read_bytes())
+    with old_hdf5(odd) as f:
+        training = json.loads(f.attrs["training"])
+        f.attrs["training"] = json.dumps({**training, "arcs_file": 123})
+    _error(runner.invoke(app, ["evaluate", str(odd)]), "records its arcs file as 123")
+    result = runner.invoke(
+        app, ["export", str(odd), "--format", "icgem", "-o", str(tmp_path / "g")]
+    )
+    assert result.exit_code == 0 and "no formal errors" in " ".join(result.output.split())
+    heavy = tmp_path / "heavy.h5"
+    heavy.write_bytes(model.read_bytes())
+    with old_hdf5(heavy) as f:
+        f.attrs["gm_m3_s2"] = 1e9
+    _error(runner.invoke(app, ["evaluate", str(heavy)]), "gm_m3_s2", "another body model")
+    _error(
+        runner.invoke(
+            app, ["export", str(heavy), "--format", "icgem", "-o", str(tmp_path / "h.gfc")]
+        ),
+        "gm_m3_s2",
+    )
+    assert not (tmp_path / "h.gfc").exists()
+
+
 def test_flipped_byte_in_arcs_is_refused(files, tmp_path):
     arcs, _ = files
     data = bytearray(arcs.read_bytes())

@@ -716,6 +716,11 @@ def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
     source = arcs_file or training.get("arcs_file") or fitted.solver.get("arcs_file")
     if not source:
         raise InputError(f"model file {model_file} records no arcs file; pass --arcs ARCS")
+    if not isinstance(source, str | os.PathLike):
+        raise InputError(
+            f"model file {model_file} records its arcs file as {source!r}, not a path; pass "
+            "--arcs ARCS"
+        )
     if arcs_file is None and not Path(source).exists():
         raise InputError(
             f"the arcs file model {model_file} was fitted to, {source}, is gone; pass the "
@@ -727,6 +732,13 @@ def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
             f"arcs {source} are of body {arcs.body_name!r}, model {model_file} of "
             f"{fitted.body_name!r}; pass the arcs of this model's campaign with --arcs"
         )
+    for name, unit in (("gm_m3_s2", "m^3/s^2"), ("spin_period_s", "s")):
+        if not math.isclose(getattr(arcs, name), getattr(fitted, name), rel_tol=1e-12):
+            raise InputError(
+                f"arcs {source} have {name} {getattr(arcs, name)!r} {unit}, model {model_file} "
+                f"{getattr(fitted, name)!r} {unit} (another body model); pass the arcs of "
+                "this model's campaign with --arcs"
+            )
     if not _same_origin(arcs.body_origin_m, fitted.body_origin_m):
         raise InputError(
             f"arcs {source} are in a frame with origin {arcs.body_origin_m} m, model "
@@ -1036,13 +1048,21 @@ def _formal_covariance(fitted, arcs_file: Path | None):
     if fitted.model.per_trajectory:
         return None, "no formal errors: the model has per-trajectory terms (e.g. SRP)"
     source = arcs_file or fitted.training.get("arcs_file") or fitted.solver.get("arcs_file")
-    if source is None or (arcs_file is None and not Path(source).is_file()):
+    if not isinstance(source, str | os.PathLike) or (
+        arcs_file is None and not Path(source).is_file()
+    ):
         return None, "no formal errors: the fit's arcs file is not there (pass --arcs ARCS)"
     arcs = load_arcs(source)
     if arcs.body_name != fitted.body_name:
         raise InputError(
             f"--arcs: arcs of body {arcs.body_name!r}, the model is of {fitted.body_name!r}"
         )
+    for name in ("gm_m3_s2", "spin_period_s"):
+        if not math.isclose(getattr(arcs, name), getattr(fitted, name), rel_tol=1e-12):
+            raise InputError(
+                f"arcs {source} have {name} {getattr(arcs, name)!r}, the model "
+                f"{getattr(fitted, name)!r} (another body model); pass its arcs with --arcs"
+            )
     if not has_noise(arcs):
         return None, f"no formal errors: {source} records no tracking noise (noise-free arcs)"
     return formal_covariance(fitted, arcs), f"formal errors from {source}"

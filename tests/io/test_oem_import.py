@@ -265,6 +265,18 @@ def test_errors_name_the_problem_and_the_fix(synthetic, exported, tmp_path):
     moon.write_text(path.read_text().replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = MOON"))
     with pytest.raises(InputError, match="CENTER_NAME 'MOON' is not body 'synthetic'"):
         import_oem([moon], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
+    for centre in ("SYNTHETIC_BARYCENTER", "SYNTHETICS"):
+        other = tmp_path / "other-centre.oem"
+        other.write_text(
+            path.read_text().replace("CENTER_NAME = SYNTHETIC", f"CENTER_NAME = {centre}")
+        )
+        with pytest.raises(InputError, match=f"CENTER_NAME '{centre}' is not body"):
+            import_oem([other], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
+    designated = tmp_path / "designated.oem"
+    designated.write_text(
+        path.read_text().replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = 99 SYNTHETIC")
+    )
+    assert import_oem([designated], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0).n_arcs == 2
     with pytest.raises(InputError, match="--samples must be at least 2"):
         import_oem([path], synthetic, samples=1)
 

@@ -251,7 +251,9 @@ def import_oem(
         for seg in message.segments:
             meta = seg.metadata
             centre = str(meta["CENTER_NAME"])
-            if name.lower() not in centre.lower():
+            # a word of the name ('25143 ITOKAWA', '67P/CHURYUMOV-GERASIMENKO'), not a barycentre
+            words = re.split(r"[^a-z0-9]+", centre.lower())
+            if name.lower() not in words or any(w.startswith("barycent") for w in words):
                 raise InputError(
                     f"{path}: CENTER_NAME {centre!r} is not body {name!r}; the states must be "
                     "relative to the body (pass the matching --body)"
