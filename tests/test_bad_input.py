@@ -167,10 +167,12 @@ def test_checkpoint_of_other_arcs_or_steps_is_refused(files, small_arcs, tmp_pat
         ({"m": np.zeros(3)}, "does not fit this run"),
         ({"step": 10**9}, "does not fit this run"),
         ({"step": -5}, "does not fit this run"),
+        ({"step": float("inf")}, "cannot be read"),
+        ({"best_step": 10**6}, "does not fit this run"),
         ({"history": "not json"}, "cannot be read"),
         ({"rng": "{}"}, "cannot be read"),
     ],
-    ids=["moments", "step-huge", "step-negative", "history", "rng"],
+    ids=["moments", "step-huge", "step-negative", "step-inf", "best-step", "history", "rng"],
 )
 def test_tampered_adam_state_is_refused(files, tmp_path, monkeypatch, change, message):
     from hamgrav.io import models
@@ -277,12 +279,6 @@ def test_an_output_that_is_an_input_is_refused(files, tmp_path):
         "give another output path",
     )
     _error(
-        runner.invoke(
-            app, ["fit", str(arcs), "--model", "sh:2", "--init", str(model), "-o", str(model)]
-        ),
-        "is also the input --init",
-    )
-    _error(
         runner.invoke(app, ["export", str(model), "--format", "icgem", "-o", str(model)]),
         "is also the input MODEL",
     )
@@ -293,6 +289,27 @@ def test_an_output_that_is_an_input_is_refused(files, tmp_path):
         "is also the input --pool",
     )
     assert {path: path.read_bytes() for path in kept} == kept
+    # continuing a model in place is what --init -o MODEL asks for (its stages are kept)
+    inplace = tmp_path / "inplace.h5"
+    inplace.write_bytes(model.read_bytes())
+    args = ["fit", str(arcs), "--model", "sh:2", "--init", str(inplace), "-o", str(inplace)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert [s["stage"] for s in load_model(inplace).stages] == [0, 1]
+
+
+def test_same_file_means_the_same_directory_entry(tmp_path):
+    from hamgrav.io.files import same_file
+
+    real = tmp_path / "a.h5"
+    real.write_bytes(b"x")
+    (tmp_path / "link.h5").symlink_to(real)
+    os.link(real, tmp_path / "hard.h5")
+    assert same_file(tmp_path / "link.h5", real)
+    assert same_file(tmp_path / "sub" / ".." / "a.h5", real)
+    # replacing one hard link's entry leaves the other: not the same entry
+    assert not same_file(tmp_path / "hard.h5", real)
+    assert not same_file(tmp_path / "b.h5", real)
 
 
 def test_an_unwritable_output_folder_is_refused_first(files, tmp_path, monkeypatch):
@@ -316,6 +333,14 @@ def test_an_unwritable_output_folder_is_refused_first(files, tmp_path, monkeypat
         "cannot write in folder",
     )
     assert list(blocked.iterdir()) == []
+    # a folder to be made below a file
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    campaign = tmp_path / "c.toml"
+    campaign.write_text('body = "synthetic"\n[orbits]\ncount = 1\n')
+    args = ["simulate", str(campaign), "-o", str(tmp_path / "x.h5"), "--oem", str(afile / "sub")]
+    _error(runner.invoke(app, args), f"{afile} is a file, not a folder")
+    assert not (tmp_path / "x.h5").exists()
 
 
 def test_noise_free_arcs_have_no_formal_errors(files, small_arcs, tmp_path):
@@ -323,7 +348,7 @@ def test_noise_free_arcs_have_no_formal_errors(files, small_arcs, tmp_path):
     quiet = save_arcs(replace(small_arcs, sigma_r_m=0.0, sigma_v_m_s=0.0), tmp_path / "quiet.h5")
     _error(
         runner.invoke(app, ["evaluate", str(model), "--arcs", str(quiet), "--uncertainty"]),
-        "--uncertainty: the arcs record no tracking noise",
+        f"--uncertainty: arcs {quiet} record no tracking noise",
         "leave out --uncertainty",
     )
     out = tmp_path / "sh2.gfc"
@@ -332,6 +357,11 @@ def test_noise_free_arcs_have_no_formal_errors(files, small_arcs, tmp_path):
     )
     assert result.exit_code == 0, result.output
     assert "no formal errors" in " ".join(result.output.split()) and out.is_file()
+    _error(
+        runner.invoke(app, ["fit", str(quiet), "--weighted", "-o", str(tmp_path / "w.h5")]),
+        f"--weighted: arcs {quiet} record no tracking noise",
+        "leave out --weighted",
+    )
 
 
 # ---------------------------------------------------------------- 4. meaningless values

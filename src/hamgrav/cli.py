@@ -534,7 +534,7 @@ def fit(
     The model file is written in every case, with the fit's outcome and diagnostics. An
     interrupted fit keeps a checkpoint beside it (OUTPUT.checkpoint.npz): --resume continues
     it, and a fresh fit refuses to start over it."""
-    from .fit.estimator import GravityEstimator, body_for_arcs, truth_shell_metric
+    from .fit.estimator import GravityEstimator, body_for_arcs, has_noise, truth_shell_metric
     from .io.arcs import load_arcs
     from .io.models import (
         checkpoint_path_for,
@@ -569,7 +569,7 @@ def fit(
     _number(steps, "--steps", 1, integer=True)
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _number(seed, "--seed", 0, integer=True)
-    _output(output, ARCS=arcs_file, **{"--init": init})
+    _output(output, ARCS=arcs_file)  # -o MODEL --init MODEL continues the model in place
     ckpt = checkpoint_path_for(output)
     if resume and not ckpt.exists():
         raise InputError(f"no checkpoint {ckpt} to resume from; run without --resume")
@@ -589,6 +589,11 @@ def fit(
     if term == "network":
         settings = {**settings, "hidden": hidden_sizes}
     settings |= {"adam_steps": steps, "learning_rate": learning_rate}
+    if weighted and not has_noise(arcs):
+        raise InputError(
+            f"--weighted: arcs {arcs_file} record no tracking noise (noise-free arcs) to whiten "
+            "by; leave out --weighted"
+        )
     estimator = GravityEstimator(
         **settings,
         prior=prior,
@@ -813,9 +818,9 @@ def evaluate(
 
         if not has_noise(arcs):
             raise InputError(
-                "--uncertainty: the arcs record no tracking noise (noise-free arcs), so the "
-                "formal errors are undefined; leave out --uncertainty, or pass --arcs with "
-                "arcs that have a noise level"
+                f"--uncertainty: arcs {arcs_file or fitted.training.get('arcs_file')} record no "
+                "tracking noise (noise-free arcs), so the formal errors are undefined; leave out "
+                "--uncertainty, or pass --arcs with arcs that have a noise level"
             )
         # a network fitted with the harmonic penalty: its rows in the normal matrix, as
         # the Kaula weight of an SH fit (the fit's own noise response)
@@ -1061,7 +1066,8 @@ def _formal_covariance(fitted, arcs_file: Path | None):
         if not math.isclose(getattr(arcs, name), getattr(fitted, name), rel_tol=1e-12):
             raise InputError(
                 f"arcs {source} have {name} {getattr(arcs, name)!r}, the model "
-                f"{getattr(fitted, name)!r} (another body model); pass its arcs with --arcs"
+                f"{getattr(fitted, name)!r} (another body model; m^3/s^2, s); pass the model's "
+                "arcs with --arcs, or export without formal errors (--no-errors)"
             )
     if not has_noise(arcs):
         return None, f"no formal errors: {source} records no tracking noise (noise-free arcs)"

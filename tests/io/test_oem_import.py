@@ -1,5 +1,6 @@
 import datetime as dt
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -142,7 +143,9 @@ def test_inertial_frame_with_rotation_model_gives_the_body_fixed_arcs(
 
     rotation = RotationModel(**POLE, spin_period_s=synthetic.spin_period_s, epoch=rot_epoch.isot)
     # ERFA's multi-line warnings about UTC in 2030 come out as one line
-    with pytest.warns(HamgravWarning, match="UTC epochs beyond the leap-second table") as seen:
+    with pytest.warns(
+        HamgravWarning, match="UTC epochs outside the span whose leap seconds ERFA knows"
+    ) as seen:
         back = import_oem(
             paths, synthetic, rotation=rotation, epoch=EPOCH, sigma_r_m=0.05, sigma_v_m_s=1e-6
         )
@@ -265,13 +268,17 @@ def test_errors_name_the_problem_and_the_fix(synthetic, exported, tmp_path):
     moon.write_text(path.read_text().replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = MOON"))
     with pytest.raises(InputError, match="CENTER_NAME 'MOON' is not body 'synthetic'"):
         import_oem([moon], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
-    for centre in ("SYNTHETIC_BARYCENTER", "SYNTHETICS"):
+    for centre, message in (("SYNTHETIC_BARYCENTER", "is a barycentre"), ("SYNTHETICS", "is not")):
         other = tmp_path / "other-centre.oem"
         other.write_text(
             path.read_text().replace("CENTER_NAME = SYNTHETIC", f"CENTER_NAME = {centre}")
         )
-        with pytest.raises(InputError, match=f"CENTER_NAME '{centre}' is not body"):
+        with pytest.raises(InputError, match=f"CENTER_NAME '{centre}' {message}"):
             import_oem([other], synthetic, sigma_r_m=1.0, sigma_v_m_s=1.0)
+    hyphen = tmp_path / "hyphen.oem"
+    hyphen.write_text(path.read_text().replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = SYN-A"))
+    renamed = replace(synthetic, name="syn-a")
+    assert import_oem([hyphen], renamed, sigma_r_m=1.0, sigma_v_m_s=1.0).body_name == "syn-a"
     designated = tmp_path / "designated.oem"
     designated.write_text(
         path.read_text().replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = 99 SYNTHETIC")
@@ -314,18 +321,29 @@ def test_noise_levels_from_the_files_must_be_positive(synthetic, exported, tmp_p
         import_oem([negative], synthetic)
     text = exported[0].read_text()
     assert "sigma_r 0.05 m" in text
-    silent = tmp_path / "silent.oem"
-    silent.write_text(text.replace("sigma_r 0.05 m", "sigma_r 0 m"))
-    with pytest.raises(InputError, match="hamgrav comments: sigma_r is 0.0 m.*pass --sigma-r"):
-        import_oem([silent], synthetic)
+    wrong = tmp_path / "wrong.oem"
+    wrong.write_text(text.replace("sigma_r 0.05 m", "sigma_r -1 m"))
+    with pytest.raises(
+        InputError, match=r"hamgrav comments: sigma_r is -1.0 m; .* --sigma-r \[m\]$"
+    ):
+        import_oem([wrong], synthetic)
     # the level given as an option replaces the file's
-    assert import_oem([silent], synthetic, sigma_r_m=0.1).sigma_r_m == 0.1
+    assert import_oem([wrong], synthetic, sigma_r_m=0.1).sigma_r_m == 0.1
+
+
+def test_noise_free_arcs_round_trip(small_arcs, synthetic, tmp_path):
+    quiet = replace(small_arcs, sigma_r_m=0.0, sigma_v_m_s=0.0)
+    back = import_oem(export_oem_by_trajectory(quiet, tmp_path), synthetic)
+    assert_same_arcs(back, quiet)
+    assert (back.sigma_r_m, back.sigma_v_m_s) == (0.0, 0.0)
 
 
 def test_samples_inside_the_body_or_far_away_point_at_the_units(synthetic, tmp_path):
     # metres read as kilometres the other way: 0.87 m from the centre, inside the body
     inside = _gap_file(tmp_path / "inside.oem", scale=1e-3)
-    with pytest.raises(DatasetError, match="20 samples lie inside the shape of 'synthetic'"):
+    with pytest.raises(
+        DatasetError, match="inside.oem: 20 samples inside the shape of 'synthetic'"
+    ):
         import_oem([inside], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
     far = _gap_file(tmp_path / "far.oem", scale=200.0)  # 173 km: 580 R_B
     with pytest.warns(HamgravWarning, match="closest sample is 5.*Brillouin radii.*units"):
@@ -333,12 +351,20 @@ def test_samples_inside_the_body_or_far_away_point_at_the_units(synthetic, tmp_p
 
 
 def test_samples_on_the_surface_are_tracking(synthetic):
-    # touchdowns and ejection points lie on the surface, which the facets only approximate
+    # touchdowns and ejection points lie on the surface, which the facets only approximate:
+    # samples down to 1 % of R_B inside it (or 5 sigma_r if more) are tracking
     from hamgrav.io.oem_import import _check_positions
 
-    units = synthetic.units
-    surface = np.asarray(synthetic.mesh_m.vertices)[::25] / units.length_m
-    centres = np.asarray(synthetic.mesh_m.triangles_center)[::50] / units.length_m
-    _check_positions(np.concatenate([surface, centres]), synthetic, np.zeros(3), units, ["s"])
-    with pytest.raises(DatasetError, match="lie inside the shape"):
-        _check_positions(0.9 * centres, synthetic, np.zeros(3), units, ["s"])
+    mesh = synthetic.mesh
+    centres, normals = mesh.triangles_center[::50], mesh.face_normals[::50]
+    surface = np.concatenate([mesh.vertices[::25], centres])[None]
+    depth = synthetic.brillouin_radius * np.array([0.005, 0.02])
+
+    def check(points, sigma_r=0.0):
+        _check_positions(points, ["s.oem"], synthetic, np.zeros(3), sigma_r)
+
+    check(surface)
+    check((centres - depth[0] * normals)[None])
+    with pytest.raises(DatasetError, match=r"s.oem: \d+ samples inside the shape"):
+        check((centres - depth[1] * normals)[None])
+    check((centres - depth[1] * normals)[None], sigma_r=depth[1])  # within 5 sigma_r

@@ -82,7 +82,9 @@ class Adam(Solver):
                 initial_cost = float(resume.get("initial_cost", np.nan))
                 consistent = (
                     2 <= first <= self.steps + 1
+                    and 0 <= best[2] < first
                     and m.shape == v.shape == best[1].shape == theta.shape
+                    and np.all(np.isfinite(best[1]))
                     and np.all(np.isfinite(m))
                     and np.all(np.isfinite(v))
                     and np.all(v >= 0)
@@ -90,7 +92,7 @@ class Adam(Solver):
                     and set(order.tolist()) <= set(np.asarray(train).tolist())
                     and cursor >= 0  # past the end: the next step draws a new order
                 )
-            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
                 raise DatasetError(
                     f"the checkpoint's Adam state cannot be read ({exc}); remove the "
                     "checkpoint and fit again without --resume"

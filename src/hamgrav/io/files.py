@@ -68,7 +68,9 @@ def check_writable_folder(folder: str | os.PathLike, what: str = "output") -> No
     existing = folder
     while not existing.exists() and existing != existing.parent:
         existing = existing.parent
-    if existing.is_dir() and not os.access(existing, os.W_OK | os.X_OK):
+    if not existing.is_dir():
+        raise InputError(f"{what} {folder}: {existing} is a file, not a folder; give a folder path")
+    if not os.access(existing, os.W_OK | os.X_OK):
         raise InputError(
             f"{what}: cannot write in folder {existing} (read-only or no permission); "
             "choose another folder"
@@ -76,14 +78,19 @@ def check_writable_folder(folder: str | os.PathLike, what: str = "output") -> No
 
 
 def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
-    """Whether paths ``a`` and ``b`` name the same file (links and relative paths resolved)."""
+    """Whether paths ``a`` and ``b`` are the same directory entry, so that replacing one
+    replaces the other: symbolic links, ``..`` and relative paths resolved, and other
+    spellings of one entry on a case-insensitive file system. Two hard links to one file
+    are not (an atomic write replaces only its own entry)."""
     a, b = Path(a), Path(b)
     try:
-        if a.exists() and b.exists():
-            return os.path.samefile(a, b)
-        return a.resolve() == b.resolve()
+        if a.resolve() == b.resolve():
+            return True
+        if a.exists() and b.exists() and os.path.samefile(a, b):
+            return os.stat(a).st_nlink == 1  # one inode, one entry: the same entry
     except OSError:
         return False
+    return False
 
 
 @contextmanager

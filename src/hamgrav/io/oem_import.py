@@ -37,7 +37,6 @@ import math
 import os
 import re
 import warnings
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -128,28 +127,21 @@ def _frame_kind(frame: str, body_name: str, path: Path) -> str:
     )
 
 
-@contextmanager
-def _erfa_warnings_in_one_line():
-    """ERFA's multi-line "dubious year" warnings (UTC epochs beyond the leap-second table,
-    one per conversion) become one line; other warnings pass through."""
+def _quiet_erfa(call, notes: set):
+    """``call()`` with ERFA's "dubious year" warnings (UTC epochs outside the span whose leap
+    seconds ERFA knows; multi-line, one per conversion) noted in ``notes`` instead of shown;
+    any other warning is shown as usual."""
     from erfa import ErfaWarning
 
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        yield
-    dubious = False
+        warnings.simplefilter("always", ErfaWarning)
+        result = call()
     for w in caught:
-        if issubclass(w.category, ErfaWarning):
-            dubious = True
+        if issubclass(w.category, ErfaWarning) and "dubious year" in str(w.message):
+            notes.add("dubious year")
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if dubious:
-        warnings.warn(
-            "UTC epochs beyond the leap-second table this astropy knows: converted to TDB "
-            "with no leap second after its end",
-            HamgravWarning,
-            stacklevel=3,
-        )
+    return result
 
 
 def _iso(t: Time) -> str:
@@ -170,7 +162,6 @@ def _runs(seconds: np.ndarray, max_gap_s: float | None) -> list[slice]:
     return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
-@_erfa_warnings_in_one_line()
 def import_oem(
     paths,
     body: Body,
@@ -243,7 +234,8 @@ def import_oem(
                     f"{name!r} has {have!r}; import it with the body it was simulated for"
                 )
     first = next((c for c in comments if c), {})
-    messages = [_read(p) for p in paths]
+    erfa_notes: set = set()
+    messages = [_quiet_erfa(lambda p=p: _read(p), erfa_notes) for p in paths]
 
     # every sample: (file, segment) -> epochs (TDB Time), positions, velocities [m, m/s]
     segments = []
@@ -251,9 +243,14 @@ def import_oem(
         for seg in message.segments:
             meta = seg.metadata
             centre = str(meta["CENTER_NAME"])
-            # a word of the name ('25143 ITOKAWA', '67P/CHURYUMOV-GERASIMENKO'), not a barycentre
-            words = re.split(r"[^a-z0-9]+", centre.lower())
-            if name.lower() not in words or any(w.startswith("barycent") for w in words):
+            if re.search(r"barycent", centre, re.IGNORECASE):
+                raise InputError(
+                    f"{path}: CENTER_NAME {centre!r} is a barycentre, not the centre of body "
+                    f"{name!r}; the states must be relative to the body itself"
+                )
+            # the name as a word of it ('25143 ITOKAWA', '67P/CHURYUMOV-GERASIMENKO')
+            word = rf"(?<![a-z0-9]){re.escape(name.lower())}(?![a-z0-9])"
+            if not re.search(word, centre.lower()):
                 raise InputError(
                     f"{path}: CENTER_NAME {centre!r} is not body {name!r}; the states must be "
                     "relative to the body (pass the matching --body)"
@@ -265,7 +262,7 @@ def import_oem(
                     "no rotation model; give --pole-ra, --pole-dec and --prime-meridian"
                 )
             states = list(seg.states)
-            epochs = Time([s.epoch for s in states]).tdb
+            epochs = _quiet_erfa(lambda st=states: Time([s.epoch for s in st]).tdb, erfa_notes)
             pos = np.array([s.position for s in states], dtype=float) * 1e3
             vel = np.array([s.velocity for s in states], dtype=float) * 1e3
             if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
@@ -331,12 +328,16 @@ def import_oem(
                 "and --sigma-v [m/s]"
             )
 
-    for level, value, unit in (("sigma_r", sigma_r_m, "m"), ("sigma_v", sigma_v_m_s, "m/s")):
-        if not (math.isfinite(float(value)) and float(value) > 0):
-            raise InputError(
-                f"noise from {noise_source}: {level} is {value!r} {unit}, but tracking data need "
-                f"a positive noise level; pass --{level.replace('_', '-')} [{unit}]"
-            )
+    # zero is noise-free (hamgrav's export of a noise-free campaign); negative or NaN is wrong
+    levels = (("sigma_r", sigma_r_m, "m"), ("sigma_v", sigma_v_m_s, "m/s"))
+    bad = [(k, v, u) for k, v, u in levels if not (math.isfinite(float(v)) and float(v) >= 0)]
+    if bad:
+        raise InputError(
+            f"noise from {noise_source}: "
+            + ", ".join(f"{k} is {v!r} {u}" for k, v, u in bad)
+            + "; a noise level is a standard deviation >= 0: pass "
+            + " and ".join(f"--{k.replace('_', '-')} [{u}]" for k, _, u in bad)
+        )
 
     # states in the body-fixed frame, canonical; arcs cut from gap-free runs
     arcs_t, arcs_x, arc_traj, dropped = [], [], [], 0
@@ -390,7 +391,20 @@ def import_oem(
     origin = origin_m if origin_m is not None else first.get("origin_m", (0.0, 0.0, 0.0))
     if np.shape(origin) != (3,) or not np.all(np.isfinite(np.asarray(origin, dtype=float))):
         raise InputError(f"--origin must be three finite numbers [m], got {origin!r}")
-    _check_positions(states[..., :3], body, np.asarray(origin, dtype=float), units, paths)
+    _check_positions(
+        states[..., :3],
+        [paths[k] for k in arc_traj],
+        body,
+        np.asarray(origin, dtype=float),
+        float(units.to_length(float(sigma_r_m))),
+    )
+    if erfa_notes:
+        warnings.warn(
+            "UTC epochs outside the span whose leap seconds ERFA knows: converted to TDB with "
+            "ERFA's extrapolation (no leap seconds beyond it)",
+            HamgravWarning,
+            stacklevel=2,
+        )
     config = {
         "source": "ccsds-oem",
         "files": [str(p) for p in paths],
@@ -425,34 +439,42 @@ def import_oem(
 
 #: Closest sample beyond this many Brillouin radii: likely a unit error (metres read as km).
 FAR_RB = 100.0
-#: Samples deeper inside the shape than this fraction of R_B are refused (the surface itself,
-#: e.g. a touchdown or an ejection point, is not: its facets only approximate the body).
+#: Samples deeper inside the shape than this fraction of R_B, or than 5 sigma_r of the
+#: tracking noise if more, are refused: the surface itself (a touchdown, an ejection point)
+#: is tracking, and its facets only approximate the body.
 INSIDE_TOLERANCE_RB = 0.01
 
 
-def _check_positions(q, body, origin_m, units, paths) -> None:
+def _check_positions(q, arc_files, body, origin_m, sigma_r) -> None:
     """Refuse samples inside the body's shape and warn when every sample is far from it:
     both mean the file's units, CENTER_NAME or frame origin are not what it says. ``q``:
-    positions (..., 3), canonical, about the frame origin ``origin_m`` [m, mesh frame]."""
+    positions (n_arcs, m, 3), canonical, about the frame origin ``origin_m`` [m, mesh frame];
+    ``arc_files``: the file of each arc; ``sigma_r``: position noise, canonical."""
     import trimesh
 
+    units = body.units
     vertices = (np.asarray(body.mesh_m.vertices) - origin_m) / units.length_m
     reach = float(np.linalg.norm(vertices, axis=1).max())
-    points = np.asarray(q, dtype=float).reshape(-1, 3)
-    radius = np.linalg.norm(points, axis=1)
-    near = points[radius < reach]  # only these can be inside
+    points = np.asarray(q, dtype=float)
+    radius = np.linalg.norm(points, axis=-1)
+    near = np.argwhere(radius < reach)  # (arc, sample) of the points that can be inside
     if len(near):
         mesh = trimesh.Trimesh(vertices, np.asarray(body.mesh_m.faces), process=False)
-        inside = mesh.contains(near)
-        if np.any(inside):  # deeper than 1 % of R_B: a sample on the surface (touchdown) is fine
-            depth = trimesh.proximity.signed_distance(mesh, near[inside])
-            inside[np.flatnonzero(inside)] = depth > INSIDE_TOLERANCE_RB * reach
+        candidates = points[near[:, 0], near[:, 1]]
+        inside = mesh.contains(candidates)
         if np.any(inside):
-            closest = float(np.linalg.norm(near[inside], axis=1).min()) * units.length_m
+            depth = trimesh.proximity.signed_distance(mesh, candidates[inside])
+            tolerance = max(INSIDE_TOLERANCE_RB * reach, 5.0 * sigma_r)
+            inside[np.flatnonzero(inside)] = depth > tolerance
+        if np.any(inside):
+            first = near[np.flatnonzero(inside)[0]]
+            files = sorted({str(arc_files[a]) for a in near[inside][:, 0]})
+            count = int(inside.sum())
+            depth_m = float(np.linalg.norm(points[first[0], first[1]])) * units.length_m
             raise DatasetError(
-                f"{', '.join(str(p) for p in paths)}: {int(inside.sum())} samples lie inside the "
-                f"shape of {body.name!r} (the innermost {closest:.4g} m from the frame origin); "
-                "check the files' units (km, km/s), CENTER_NAME and --origin"
+                f"{', '.join(files)}: {count} sample{'s' if count > 1 else ''} inside the shape "
+                f"of {body.name!r} (one {depth_m:.4g} m from the frame origin); check the "
+                "file's units (km, km/s), CENTER_NAME and --origin"
             )
     if radius.min() > FAR_RB * reach:
         warnings.warn(
