@@ -301,6 +301,20 @@ def test_checkpoint_errors(tmp_path):
     with pytest.raises(TypeError, match="plain data"):
         save_checkpoint(tmp_path / "s.npz", np.zeros(1), {"s": {1, 2}})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz"]
+    # a model file where the checkpoint should be (not: "pickled data", numpy's own words)
+    model_like = tmp_path / "m.npz"
+    with h5py.File(model_like, "w") as f:
+        f["x"] = np.zeros(3)
+    with pytest.raises(ModelFileError, match="m.npz is an HDF5 file, not a hamgrav checkpoint"):
+        load_checkpoint(model_like)
+
+
+def test_non_numeric_attributes_are_named(mascon_fitted, tmp_path, old_hdf5):
+    path = save_model(mascon_fitted, tmp_path / "m.h5")
+    with old_hdf5(path) as f:
+        f.attrs["gm_m3_s2"] = "abc"
+    with pytest.raises(ModelFileError, match="'gm_m3_s2' must be a"):
+        load_model(path)
 
 
 def test_version_1_file_with_srp_slot_is_read(mascon_fitted, tmp_path, old_hdf5):

@@ -91,6 +91,16 @@ def _attr(f, name):
     return value.decode() if isinstance(value, bytes) else value
 
 
+def _attr_as(f, name: str, kind):
+    """Attribute ``name`` converted by ``kind`` (float, int), naming the attribute if it
+    cannot be."""
+    value = _attr(f, name)
+    try:
+        return kind(value)
+    except (TypeError, ValueError, OverflowError):
+        raise DatasetError(f"attribute {name!r} must be a number, got {value!r}") from None
+
+
 def _data(f, name, ndim: int, kind: str = "f"):
     """Dataset ``name`` as an array of ``ndim`` dimensions and a numeric ``kind``."""
     try:
@@ -109,7 +119,7 @@ def _data(f, name, ndim: int, kind: str = "f"):
 
 
 def _number(f, name, low: float, *, open_low: bool) -> float:
-    value = float(_attr(f, name))
+    value = _attr_as(f, name, float)
     if not (math.isfinite(value) and (value > low if open_low else value >= low)):
         sign = ">" if open_low else ">="
         raise DatasetError(f"attribute {name!r} must be a finite number {sign} {low}, got {value}")
@@ -146,7 +156,7 @@ def _read(f, path: Path) -> Arcs:
             f"not a hamgrav arcs file (format {fmt!r}); pass a file written by "
             "'hamgrav simulate' or 'hamgrav import-oem'"
         )
-    version = int(_attr(f, "format_version"))
+    version = _attr_as(f, "format_version", int)
     if version > ARCS_FORMAT_VERSION:
         raise DatasetError(
             f"format version {version} is newer than this hamgrav reads "
@@ -173,7 +183,7 @@ def _read(f, path: Path) -> Arcs:
         "sigma_v_m_s": _number(f, "sigma_v_m_s", 0.0, open_low=False),
         "interior": str(_attr(f, "interior")),
         "interior_parameters": _json(f, "interior_parameters", dict),
-        "seed": int(_attr(f, "seed")),
+        "seed": _attr_as(f, "seed", int),
         "config": _json(f, "config", dict),
     }
     n, m = times.shape

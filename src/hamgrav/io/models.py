@@ -168,6 +168,16 @@ def _attr(obj, name: str):
     return value.decode() if isinstance(value, bytes) else value
 
 
+def _attr_as(f, name: str, kind):
+    """Attribute ``name`` converted by ``kind`` (float, int), naming the attribute if it
+    cannot be."""
+    value = _attr(f, name)
+    try:
+        return kind(value)
+    except (TypeError, ValueError, OverflowError):
+        raise ModelFileError(f"attribute {name!r} must be a number, got {value!r}") from None
+
+
 def _read_history(group: h5py.Group) -> dict:
     other = json.loads(_attr(group, "json"))
     history = {}
@@ -182,7 +192,7 @@ def _read_history(group: h5py.Group) -> dict:
 
 
 def _positive(f: h5py.File, name: str) -> float:
-    value = float(_attr(f, name))
+    value = _attr_as(f, name, float)
     if not (math.isfinite(value) and value > 0):
         raise ModelFileError(f"attribute {name!r} must be a finite number > 0, got {value}")
     return value
@@ -198,7 +208,7 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
     if fmt != MODEL_FORMAT:
         hint = " (an arcs file? pass it with --arcs)" if fmt == "hamgrav-arcs" else ""
         raise ModelFileError(f"not a hamgrav model file (format {fmt!r}){hint}")
-    version = int(_attr(f, "format_version"))
+    version = _attr_as(f, "format_version", int)
     if version > MODEL_FORMAT_VERSION:
         raise ModelFileError(
             f"format version {version} (written by hamgrav {_attr(f, 'hamgrav_version')}) is "
@@ -399,6 +409,11 @@ def load_checkpoint(path: str | os.PathLike, expect: dict | None = None) -> tupl
         raise ModelFileError(f"checkpoint {path} is a folder; delete it or choose another -o")
     if not path.is_file():
         raise ModelFileError(f"checkpoint file not found: {path}")
+    if h5py.is_hdf5(path):  # e.g. a model file (np.load would speak of pickled data)
+        raise ModelFileError(
+            f"checkpoint {path} is an HDF5 file, not a hamgrav checkpoint (npz); remove it and "
+            "fit again without --resume"
+        )
     try:
         with np.load(path, allow_pickle=False) as data:
             header = json.loads(str(data["header"][0]))
