@@ -57,13 +57,17 @@ def test_missing_dataset_named(small_arcs, tmp_path, old_hdf5):
         load_arcs(path)
 
 
-@pytest.mark.parametrize("name, value", [("sigma_r_m", "abc"), ("seed", "x"), ("gm_m3_s2", "1e")])
+@pytest.mark.parametrize(
+    "name, value",
+    [("sigma_r_m", "abc"), ("seed", "x"), ("gm_m3_s2", "1e"), ("gm_m3_s2", np.zeros((2, 2, 2)))],
+)
 def test_non_numeric_attributes_are_named(small_arcs, tmp_path, old_hdf5, name, value):
     path = save_arcs(small_arcs, tmp_path / "a.h5")
     with old_hdf5(path) as f:
         f.attrs[name] = value
-    with pytest.raises(DatasetError, match=f"'{name}' must be a"):
+    with pytest.raises(DatasetError, match=f"'{name}' must be a") as info:
         load_arcs(path)
+    assert "\n" not in str(info.value)  # one line, even for an array
 
 
 def test_other_hdf5_file_refused(tmp_path):

@@ -309,12 +309,14 @@ def test_checkpoint_errors(tmp_path):
         load_checkpoint(model_like)
 
 
-def test_non_numeric_attributes_are_named(mascon_fitted, tmp_path, old_hdf5):
+@pytest.mark.parametrize("value", ["abc", np.zeros((2, 2, 2))])
+def test_non_numeric_attributes_are_named(mascon_fitted, tmp_path, old_hdf5, value):
     path = save_model(mascon_fitted, tmp_path / "m.h5")
     with old_hdf5(path) as f:
-        f.attrs["gm_m3_s2"] = "abc"
-    with pytest.raises(ModelFileError, match="'gm_m3_s2' must be a"):
+        f.attrs["gm_m3_s2"] = value
+    with pytest.raises(ModelFileError, match="'gm_m3_s2' must be a") as info:
         load_model(path)
+    assert "\n" not in str(info.value)  # one line, even for an array
 
 
 def test_version_1_file_with_srp_slot_is_read(mascon_fitted, tmp_path, old_hdf5):

@@ -27,7 +27,16 @@ from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
 from ..errors import DatasetError
 from .files import atomic_path
-from .hdf5 import READ_ERRORS, body_origin, create, open_for_reading, seal, write_array
+from .hdf5 import (
+    READ_ERRORS,
+    attribute,
+    body_origin,
+    create,
+    number_attribute,
+    open_for_reading,
+    seal,
+    write_array,
+)
 
 __all__ = ["save_arcs", "load_arcs", "MAX_STATE"]
 
@@ -83,22 +92,8 @@ def _write(arcs: Arcs, tmp: Path) -> None:
         write_array(truth, "masses", arcs.truth.masses)
 
 
-def _attr(f, name):
-    try:
-        value = f.attrs[name]
-    except KeyError:
-        raise DatasetError(f"attribute {name!r} is missing") from None
-    return value.decode() if isinstance(value, bytes) else value
-
-
-def _attr_as(f, name: str, kind):
-    """Attribute ``name`` converted by ``kind`` (float, int), naming the attribute if it
-    cannot be."""
-    value = _attr(f, name)
-    try:
-        return kind(value)
-    except (TypeError, ValueError, OverflowError):
-        raise DatasetError(f"attribute {name!r} must be a number, got {value!r}") from None
+def _attr(f, name: str):
+    return attribute(f, name, DatasetError)
 
 
 def _data(f, name, ndim: int, kind: str = "f"):
@@ -119,7 +114,7 @@ def _data(f, name, ndim: int, kind: str = "f"):
 
 
 def _number(f, name, low: float, *, open_low: bool) -> float:
-    value = _attr_as(f, name, float)
+    value = number_attribute(f, name, float, DatasetError)
     if not (math.isfinite(value) and (value > low if open_low else value >= low)):
         sign = ">" if open_low else ">="
         raise DatasetError(f"attribute {name!r} must be a finite number {sign} {low}, got {value}")
@@ -156,7 +151,7 @@ def _read(f, path: Path) -> Arcs:
             f"not a hamgrav arcs file (format {fmt!r}); pass a file written by "
             "'hamgrav simulate' or 'hamgrav import-oem'"
         )
-    version = _attr_as(f, "format_version", int)
+    version = number_attribute(f, "format_version", int, DatasetError)
     if version > ARCS_FORMAT_VERSION:
         raise DatasetError(
             f"format version {version} is newer than this hamgrav reads "
@@ -183,7 +178,7 @@ def _read(f, path: Path) -> Arcs:
         "sigma_v_m_s": _number(f, "sigma_v_m_s", 0.0, open_low=False),
         "interior": str(_attr(f, "interior")),
         "interior_parameters": _json(f, "interior_parameters", dict),
-        "seed": _attr_as(f, "seed", int),
+        "seed": number_attribute(f, "seed", int, DatasetError),
         "config": _json(f, "config", dict),
     }
     n, m = times.shape

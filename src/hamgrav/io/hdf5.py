@@ -31,8 +31,10 @@ from ..errors import DatasetError, HamgravWarning
 __all__ = [
     "READ_ERRORS",
     "USERBLOCK",
+    "attribute",
     "body_origin",
     "create",
+    "number_attribute",
     "open_for_reading",
     "seal",
     "write_array",
@@ -168,3 +170,24 @@ def body_origin(value, error: type[Exception]) -> tuple[float, float, float]:
         got = f"shape {origin.shape}" if origin.shape != (3,) else str(origin.tolist())
         raise error(f"attribute 'body_origin_m' must be 3 finite numbers, got {got}")
     return tuple(float(v) for v in origin)
+
+
+def attribute(obj, name: str, error: type[Exception]):
+    """Attribute ``name`` of an HDF5 file, group or dataset, bytes decoded to text; raises
+    ``error`` when it is missing."""
+    try:
+        value = obj.attrs[name]
+    except KeyError:
+        raise error(f"attribute {name!r} is missing") from None
+    return value.decode() if isinstance(value, bytes) else value
+
+
+def number_attribute(obj, name: str, kind, error: type[Exception]):
+    """Attribute ``name`` converted by ``kind`` (float, int); raises ``error`` naming the
+    attribute, in one line, when it is missing or not a number."""
+    value = attribute(obj, name, error)
+    try:
+        return kind(value)
+    except (TypeError, ValueError, OverflowError):
+        shown = f"an array of shape {value.shape}" if isinstance(value, np.ndarray) else repr(value)
+        raise error(f"attribute {name!r} must be a number, got {shown[:60]}") from None

@@ -42,8 +42,8 @@ from .. import __version__
 from ..core.model import Model
 from ..errors import DatasetError, HamgravWarning
 from ..fit.fitted import FittedModel
+from . import hdf5
 from .files import atomic_path
-from .hdf5 import READ_ERRORS, body_origin, create, open_for_reading, seal, write_array
 
 __all__ = [
     "ModelFileError",
@@ -61,7 +61,7 @@ CHECKPOINT_FORMAT_VERSION = 1
 UNITS = "canonical: length = synchronous radius, time = spin period / 2 pi"
 _ARRAY_PREFIX = "state_array/"
 _CORRUPT = "is truncated, corrupted or not a hamgrav"
-_NPZ_ERRORS = (*READ_ERRORS, EOFError, zipfile.BadZipFile)
+_NPZ_ERRORS = (*hdf5.READ_ERRORS, EOFError, zipfile.BadZipFile)
 _FIX = "fit the model again"
 
 
@@ -114,7 +114,7 @@ def _write_history(group: h5py.Group, history: dict) -> None:
             raise TypeError(f"history keys must be strings, got {name!r}")
         arr = _numeric_array(value)
         if arr is not None and name not in ("", ".") and "/" not in name:
-            write_array(group, name, arr)
+            hdf5.write_array(group, name, arr)
         else:
             other[name] = value
     group.attrs["names"] = json.dumps(list(history))
@@ -152,30 +152,16 @@ def save_model(fitted: FittedModel, path: str | os.PathLike) -> Path:
     if not np.all(np.isfinite(params)):
         raise ValueError("cannot save the model: its parameters are not all finite")
     with atomic_path(path) as tmp:
-        with create(tmp) as f:
+        with hdf5.create(tmp) as f:
             f.attrs.update(attrs)
-            write_array(f, "params", params)
+            hdf5.write_array(f, "params", params)
             _write_history(f.create_group("history"), fitted.history)
-        seal(tmp)
+        hdf5.seal(tmp)
     return path
 
 
 def _attr(obj, name: str):
-    try:
-        value = obj.attrs[name]
-    except KeyError:
-        raise ModelFileError(f"attribute {name!r} is missing") from None
-    return value.decode() if isinstance(value, bytes) else value
-
-
-def _attr_as(f, name: str, kind):
-    """Attribute ``name`` converted by ``kind`` (float, int), naming the attribute if it
-    cannot be."""
-    value = _attr(f, name)
-    try:
-        return kind(value)
-    except (TypeError, ValueError, OverflowError):
-        raise ModelFileError(f"attribute {name!r} must be a number, got {value!r}") from None
+    return hdf5.attribute(obj, name, ModelFileError)
 
 
 def _read_history(group: h5py.Group) -> dict:
@@ -192,7 +178,7 @@ def _read_history(group: h5py.Group) -> dict:
 
 
 def _positive(f: h5py.File, name: str) -> float:
-    value = _attr_as(f, name, float)
+    value = hdf5.number_attribute(f, name, float, ModelFileError)
     if not (math.isfinite(value) and value > 0):
         raise ModelFileError(f"attribute {name!r} must be a finite number > 0, got {value}")
     return value
@@ -208,7 +194,7 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
     if fmt != MODEL_FORMAT:
         hint = " (an arcs file? pass it with --arcs)" if fmt == "hamgrav-arcs" else ""
         raise ModelFileError(f"not a hamgrav model file (format {fmt!r}){hint}")
-    version = _attr_as(f, "format_version", int)
+    version = hdf5.number_attribute(f, "format_version", int, ModelFileError)
     if version > MODEL_FORMAT_VERSION:
         raise ModelFileError(
             f"format version {version} (written by hamgrav {_attr(f, 'hamgrav_version')}) is "
@@ -238,7 +224,7 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
     problem = _params_problem(model, params, per_trajectory)
     if problem:
         raise ModelFileError(f"file inconsistent: {problem}")
-    origin = body_origin(_attr(f, "body_origin_m"), ModelFileError)
+    origin = hdf5.body_origin(_attr(f, "body_origin_m"), ModelFileError)
     training = json.loads(_attr(f, "training")) if "training" in f.attrs else {}
     dicts = {k: json.loads(_attr(f, k)) for k in ("prior", "solver")}
     stages = json.loads(_attr(f, "stages"))
@@ -284,14 +270,14 @@ def load_model(
     """
     path = Path(path)
     try:
-        with open_for_reading(path, "model file", _FIX, ModelFileError, MODEL_FORMAT) as f:
+        with hdf5.open_for_reading(path, "model file", _FIX, ModelFileError, MODEL_FORMAT) as f:
             fitted = _read_model(f, path)
     except DatasetError as exc:
         text = str(exc)
         if ";" not in text:  # what is wrong, then how to fix it
             text = f"{text}; {_FIX}"
         raise ModelFileError(text if str(path) in text else f"model file {path}: {text}") from None
-    except READ_ERRORS as exc:  # JSON: ValueError
+    except hdf5.READ_ERRORS as exc:  # JSON: ValueError
         raise ModelFileError(f"{path} {_CORRUPT} model file ({exc}); {_FIX}") from None
     if expect_body is not None and fitted.body_name != expect_body:
         raise ModelFileError(
