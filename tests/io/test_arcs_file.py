@@ -70,6 +70,22 @@ def test_non_numeric_attributes_are_named(small_arcs, tmp_path, old_hdf5, name, 
     assert "\n" not in str(info.value)  # one line, even for an array
 
 
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda m: -m, "positive total mass"),
+        (lambda m: np.concatenate([[-0.1 * m.sum()], 1.1 * m[1:]]), "1 negative masses"),
+    ],
+)
+def test_truth_masses_checked(small_arcs, tmp_path, old_hdf5, change, message):
+    path = save_arcs(small_arcs, tmp_path / "a.h5")
+    with old_hdf5(path) as f:
+        masses = f["truth/masses"][()]
+        f["truth/masses"][...] = change(masses)
+    with pytest.raises(DatasetError, match=message):
+        load_arcs(path)
+
+
 def test_other_hdf5_file_refused(tmp_path):
     path = tmp_path / "other.h5"
     with h5py.File(path, "w") as f:

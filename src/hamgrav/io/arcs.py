@@ -224,6 +224,12 @@ def _read(f, path: Path) -> Arcs:
         raise DatasetError(f"interior {NO_TRUTH!r} (no truth) but truth mascons are stored")
     if not no_truth and (len(masses) < 1 or not masses.sum() > 0):
         raise DatasetError("the truth mascons must have a positive total mass")
+    if np.any(masses < 0):
+        # every interior hamgrav builds is a positive density compressed to point masses
+        raise DatasetError(
+            f"dataset 'truth/masses' holds {int(np.sum(masses < 0))} negative masses "
+            f"(the smallest {float(masses.min()):.3g}); truth mascons are >= 0"
+        )
     return Arcs(
         times=times,
         states=states,
