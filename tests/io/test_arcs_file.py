@@ -2,8 +2,9 @@ import h5py
 import numpy as np
 import pytest
 
-from hamgrav.errors import DatasetError
-from hamgrav.io.arcs import load_arcs, save_arcs
+from hamgrav.core.arcs import NO_TRUTH
+from hamgrav.errors import DatasetError, HamgravWarning
+from hamgrav.io.arcs import ARCS_FORMAT_VERSION, load_arcs, save_arcs
 from hamgrav.io.files import atomic_path
 
 
@@ -84,6 +85,86 @@ def test_truth_masses_checked(small_arcs, tmp_path, old_hdf5, change, message):
         f["truth/masses"][...] = change(masses)
     with pytest.raises(DatasetError, match=message):
         load_arcs(path)
+
+
+def _replace(f, name, value):
+    del f[name]
+    f[name] = value
+
+
+def _repeat_a_time(f):
+    times = f["times"][()]
+    times[0, 1] = times[0, 0]
+    _replace(f, "times", times)
+
+
+def _one_sample(f):
+    for name in ("times", "states", "true_states"):
+        _replace(f, name, f[name][()][:, :1])
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (
+            lambda f: f.attrs.__setitem__("format_version", ARCS_FORMAT_VERSION + 1),
+            "newer than this hamgrav reads",
+        ),
+        (lambda f: _replace(f, "trajectory", f["trajectory"][()] + 0.5), "expected integers"),
+        (lambda f: f.attrs.__setitem__("interior", NO_TRUTH), "'true_states' holds numbers"),
+        (_repeat_a_time, "must increase strictly"),
+        (_one_sample, "arcs of >= 2"),
+        (lambda f: f["truth/masses"].__setitem__(..., 0.0), "positive total mass"),
+        (
+            lambda f: f.attrs.__setitem__("body_origin_m", [np.nan, 0.0, 0.0]),
+            "'body_origin_m' must be 3 finite numbers",
+        ),
+    ],
+    ids=[
+        "newer",
+        "float-trajectory",
+        "no-truth",
+        "repeated-time",
+        "one-sample",
+        "zero-mass",
+        "nan-origin",
+    ],
+)
+def test_unsealed_file_checked(small_arcs, tmp_path, old_hdf5, edit, message):
+    """An older (unsealed) file is read only if its contents pass every check."""
+    path = save_arcs(small_arcs, tmp_path / "a.h5")
+    with old_hdf5(path) as f:
+        edit(f)
+    with pytest.raises(DatasetError, match=message):
+        load_arcs(path)
+
+
+def test_text_attributes_as_bytes_read_as_text(small_arcs, tmp_path, old_hdf5):
+    """Fixed-length byte strings (as other HDF5 writers store text) read back as text."""
+    path = save_arcs(small_arcs, tmp_path / "a.h5")
+    with old_hdf5(path) as f:
+        for name in ("format", "body_name", "interior"):
+            f.attrs[name] = np.bytes_(f.attrs[name])
+    with pytest.warns(HamgravWarning, match="no hamgrav checksum"):
+        back = load_arcs(path)
+    assert back.body_name == small_arcs.body_name and type(back.body_name) is str
+    assert back.interior == small_arcs.interior
+
+
+def test_datasets_carry_their_own_checksums(small_arcs, tmp_path):
+    """Besides the file checksum, each dataset has HDF5's Fletcher-32 (what an older reader
+    or h5py alone can check)."""
+    path = save_arcs(small_arcs, tmp_path / "a.h5")
+    found = []
+    with h5py.File(path, "r") as f:
+        f.visititems(
+            lambda name, obj: (
+                found.append((name, obj.fletcher32))
+                if isinstance(obj, h5py.Dataset) and obj.size
+                else None
+            )
+        )
+    assert found and all(flag for _, flag in found), found
 
 
 def test_other_hdf5_file_refused(tmp_path):

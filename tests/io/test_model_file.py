@@ -1,3 +1,4 @@
+import json
 from collections import OrderedDict
 
 import h5py
@@ -307,6 +308,57 @@ def test_checkpoint_errors(tmp_path):
         f["x"] = np.zeros(3)
     with pytest.raises(ModelFileError, match="m.npz is an HDF5 file, not a hamgrav checkpoint"):
         load_checkpoint(model_like)
+
+
+@pytest.mark.parametrize(
+    "name, value, message",
+    [
+        ("gm_m3_s2", 0.0, "'gm_m3_s2' must be a finite number > 0"),
+        ("spin_period_s", 0.0, "'spin_period_s' must be a finite number > 0"),
+        ("body_origin_m", [0.0, np.inf, 0.0], "'body_origin_m' must be 3 finite numbers"),
+    ],
+)
+def test_unsealed_attributes_checked(mascon_fitted, tmp_path, old_hdf5, name, value, message):
+    path = save_model(mascon_fitted, tmp_path / "m.h5")
+    with old_hdf5(path) as f:
+        f.attrs[name] = value
+    with pytest.raises(ModelFileError, match=message):
+        load_model(path)
+
+
+def test_params_of_no_number_type_refused(nn_fitted, tmp_path, old_hdf5):
+    path = save_model(nn_fitted, tmp_path / "m.h5")
+    with old_hdf5(path) as f:
+        del f["params"]
+        f["params"] = np.ones(nn_fitted.model.n_learn, dtype=bool)
+    with pytest.raises(ModelFileError, match="'params' holds bool, expected real numbers"):
+        load_model(path)
+
+
+def _rewrite_header(path, change):
+    """Rewrite a checkpoint with its JSON header changed by ``change(header)``."""
+    with np.load(path, allow_pickle=False) as data:
+        entries = {k: data[k] for k in data.files}
+    header = json.loads(str(entries["header"][0]))
+    change(header)
+    entries["header"] = np.array([json.dumps(header)])
+    with open(path, "wb") as fh:
+        np.savez(fh, allow_pickle=False, **entries)
+
+
+def test_checkpoint_header_checked(tmp_path):
+    path = save_checkpoint(tmp_path / "c.npz", np.zeros(3), {"solver": "lm"})
+    _rewrite_header(path, lambda h: h.update(format="something-else"))
+    with pytest.raises(ModelFileError, match="not a hamgrav checkpoint .*something-else"):
+        load_checkpoint(path)
+    # written before checkpoints recorded their fit: only the solver can be compared
+    path = save_checkpoint(tmp_path / "old.npz", np.zeros(3), {"solver": "lm"})
+    _rewrite_header(path, lambda h: h.pop("identity", None))
+    with pytest.raises(ModelFileError, match="written by the 'lm' solver, this fit runs 'adam'"):
+        load_checkpoint(path, expect={"solver": "adam"})
+    with pytest.warns(HamgravWarning, match="does not record which fit wrote it"):
+        params, state = load_checkpoint(path, expect={"solver": "lm"})
+    assert state == {"solver": "lm"} and np.array_equal(params, np.zeros(3))
 
 
 @pytest.mark.parametrize("value", ["abc", np.zeros((2, 2, 2))])
