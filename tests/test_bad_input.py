@@ -16,6 +16,7 @@ from hamgrav.core.mascons import MasconSet
 from hamgrav.errors import DatasetError, HamgravWarning
 from hamgrav.io.arcs import load_arcs, save_arcs
 from hamgrav.io.models import checkpoint_path_for, load_model, save_checkpoint
+from hamgrav.io.oem import export_oem_by_trajectory
 
 runner = CliRunner()
 
@@ -248,11 +249,13 @@ def test_outputs_checked_before_the_computation(files, tmp_path, kind):
     target = {
         "folder": tmp_path,
         "symlink": tmp_path / "link.h5",
-        "device": "/dev/null",
+        "device": tmp_path / "fifo",  # not /dev/null: a broken check would replace it
         "missing-folder": tmp_path / "nope" / "out.h5",
     }[kind]
     if kind == "symlink":
         target.symlink_to(model)
+    if kind == "device":
+        os.mkfifo(target)
     message = {
         "folder": "is a folder; give a file name",
         "symlink": "is a symbolic link",
@@ -267,6 +270,8 @@ def test_outputs_checked_before_the_computation(files, tmp_path, kind):
     )
     if kind == "symlink":
         assert target.is_symlink() and os.readlink(target) == str(model)
+    if kind == "device":
+        assert target.is_fifo()
 
 
 def test_an_output_that_is_an_input_is_refused(files, tmp_path):
@@ -288,6 +293,27 @@ def test_an_output_that_is_an_input_is_refused(files, tmp_path):
         runner.invoke(app, ["select", str(model), "--pool", str(pool), "-o", str(pool)]),
         "is also the input --pool",
     )
+    _error(
+        runner.invoke(
+            app, ["export", str(model), "--format", "icgem", "--arcs", str(arcs), "-o", str(arcs)]
+        ),
+        "is also the input --arcs",
+    )
+    campaign = tmp_path / "c.toml"
+    campaign.write_text('body = "synthetic"\n[orbits]\ncount = 1\n')
+    _error(
+        runner.invoke(app, ["simulate", str(campaign), "-o", str(campaign)]),
+        "is also the input CAMPAIGN",
+    )
+    assert campaign.read_text().startswith('body = "synthetic"')
+    (tmp_path / "oem").mkdir()
+    oem = export_oem_by_trajectory(load_arcs(arcs), tmp_path / "oem")[0]
+    text = oem.read_text()
+    _error(
+        runner.invoke(app, ["import-oem", str(oem), "--body", "synthetic", "-o", str(oem)]),
+        f"is also the input FILE {oem}",
+    )
+    assert oem.read_text() == text
     assert {path: path.read_bytes() for path in kept} == kept
     # continuing a model in place is what --init -o MODEL asks for (its stages are kept)
     inplace = tmp_path / "inplace.h5"
@@ -296,6 +322,27 @@ def test_an_output_that_is_an_input_is_refused(files, tmp_path):
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert [s["stage"] for s in load_model(inplace).stages] == [0, 1]
+
+
+def test_an_output_below_a_file_is_named(files, tmp_path):
+    arcs, _ = files
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    args = ["fit", str(arcs), "--model", "sh:2", "-o", str(afile / "m.h5")]
+    _error(runner.invoke(app, args), f"{afile} is a file, not a folder")
+
+
+def test_a_checkpoint_that_is_a_link_is_refused_first(files, tmp_path):
+    arcs, _ = files
+    output = tmp_path / "m.h5"
+    elsewhere = save_checkpoint(tmp_path / "elsewhere.npz", np.zeros(3), {})
+    kept = elsewhere.read_bytes()
+    checkpoint_path_for(output).symlink_to(elsewhere)
+    args = ["fit", str(arcs), "--model", "sh:2", "-o", str(output), "--resume"]
+    _error(runner.invoke(app, args), "checkpoint", "is a symbolic link")
+    link = checkpoint_path_for(output)
+    assert link.is_symlink() and os.readlink(link) == str(elsewhere)
+    assert not output.exists() and elsewhere.read_bytes() == kept
 
 
 def test_same_file_means_the_same_directory_entry(tmp_path):
@@ -318,7 +365,11 @@ def test_an_unwritable_output_folder_is_refused_first(files, tmp_path, monkeypat
     blocked = tmp_path / "blocked"
     blocked.mkdir()
     real_access = os.access
-    monkeypatch.setattr(os, "access", lambda p, mode: Path(p) != blocked and real_access(p, mode))
+    monkeypatch.setattr(
+        os,
+        "access",
+        lambda p, mode: not (Path(p) == blocked and mode & os.W_OK) and real_access(p, mode),
+    )
     _error(
         runner.invoke(app, ["fit", str(arcs), "--model", "sh:2", "-o", str(blocked / "m.h5")]),
         f"cannot write in folder {blocked}",

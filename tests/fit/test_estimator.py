@@ -59,6 +59,8 @@ def test_whitening_needs_positive_noise(small_arcs):
         noise_whitening(replace(small_arcs, sigma_v_m_s=0.0))
     with pytest.raises(InputError, match="sigma_r nan m"):
         noise_whitening(replace(small_arcs, sigma_r_m=float("nan")))
+    with pytest.raises(InputError, match="sigma_r inf m"):
+        noise_whitening(replace(small_arcs, sigma_r_m=float("inf")))
 
 
 def test_weighted_fit_whitens_the_residuals(small_arcs, synthetic_truth):

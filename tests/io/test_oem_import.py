@@ -1,5 +1,6 @@
 import datetime as dt
 import math
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -368,3 +369,67 @@ def test_samples_on_the_surface_are_tracking(synthetic):
     with pytest.raises(DatasetError, match=r"s.oem: \d+ samples inside the shape"):
         check((centres - depth[1] * normals)[None])
     check((centres - depth[1] * normals)[None], sigma_r=depth[1])  # within 5 sigma_r
+    check((centres - depth[1] * normals)[None], sigma_r=depth[1] / 4)  # 1.25 depth
+    with pytest.raises(DatasetError, match="inside the shape"):  # 5 sigma_r: 0.83 depth
+        check((centres - depth[1] * normals)[None], sigma_r=depth[1] / 6)
+
+
+def test_options_and_files_checked_before_reading(synthetic, tmp_path):
+    path = _gap_file(tmp_path / "gap.oem")
+    noise = {"sigma_r_m": 1.0, "sigma_v_m_s": 1e-3}
+    with pytest.raises(InputError, match="--sigma-r must be a positive number, got 0.0"):
+        import_oem([path], synthetic, sigma_r_m=0.0, sigma_v_m_s=1e-3)
+    for gap in (0.0, float("nan")):
+        with pytest.raises(InputError, match="--max-gap must be a positive number of seconds"):
+            import_oem([path], synthetic, max_gap_s=gap, **noise)
+    # the same file under another spelling of its path, then through a symbolic link
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "link.oem").symlink_to(path)
+    for again in (tmp_path / "sub" / ".." / "gap.oem", tmp_path / "link.oem"):
+        with pytest.raises(InputError, match="is given twice"):
+            import_oem([path, again], synthetic, **noise)
+    # the body's name must stand as a word, not as the end of another one
+    other = tmp_path / "other.oem"
+    other.write_text(
+        path.read_text().replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = NOSYNTHETIC")
+    )
+    with pytest.raises(InputError, match="CENTER_NAME 'NOSYNTHETIC' is not body 'synthetic'"):
+        import_oem([other], synthetic, **noise)
+
+
+def test_epochs_equal_in_time_but_not_in_text_are_refused(synthetic, tmp_path):
+    # the oem package orders epochs by their text; 00:00:00 and 00:00:00.000000 are one time
+    text = _gap_file(tmp_path / "gap.oem").read_text().splitlines()
+    rows = [i for i, line in enumerate(text) if line.startswith("2030-01-01T00:00:")]
+    first, second = rows[0], rows[1]
+    text[first] = "2030-01-01T00:00:00" + text[first][len("2030-01-01T00:00:00.000000") :]
+    text[second] = "2030-01-01T00:00:00.000000" + text[second][len("2030-01-01T00:00:10.000000") :]
+    same = tmp_path / "same.oem"
+    same.write_text("\n".join(text) + "\n")
+    with pytest.raises(DatasetError, match="same.oem: the epochs of a segment do not increase"):
+        import_oem([same], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+
+
+def test_noise_levels_from_the_comments_must_be_finite(synthetic, exported, tmp_path):
+    wrong = tmp_path / "inf.oem"
+    wrong.write_text(exported[0].read_text().replace("sigma_r 0.05 m", "sigma_r inf m"))
+    with pytest.raises(InputError, match="sigma_r is inf m"):
+        import_oem([wrong], synthetic)
+
+
+def test_own_export_refused_for_another_body_model(synthetic, exported):
+    for key in ("gm_m3_s2", "spin_period_s"):
+        other = replace(synthetic, **{key: 2 * getattr(synthetic, key)})
+        with pytest.raises(InputError, match=f"was written by hamgrav for {key}"):
+            import_oem(exported, other)
+
+
+def test_far_warning_threshold(synthetic, tmp_path):
+    # about 150 R_B: warned; about 90 R_B: not (the threshold is 100 R_B)
+    far = _gap_file(tmp_path / "far.oem", scale=52.0)
+    with pytest.warns(HamgravWarning, match="Brillouin radii"):
+        import_oem([far], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+    near = _gap_file(tmp_path / "near.oem", scale=31.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", HamgravWarning)
+        import_oem([near], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
