@@ -293,6 +293,41 @@ def test_fit_strict_fails_a_fit_that_learns_nothing(point_mass_arcs, tmp_path):
     assert solver["outcome"] == "no improvement" and not solver["diagnostics"]["improved"]
 
 
+def test_fit_strict_passes_a_fit_that_learns(small_arcs, tmp_path):
+    from hamgrav.io.arcs import save_arcs
+
+    arcs = save_arcs(small_arcs, tmp_path / "a.h5")
+    args = ["fit", str(arcs), "--model", "sh:2", "-o", str(tmp_path / "m.h5"), "--strict"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "does not clearly improve" not in result.output
+
+
+def test_fit_strict_follows_the_diagnostics_not_the_outcome(point_mass_arcs, tmp_path, monkeypatch):
+    """A fit that ends for another reason than "no improvement" (here: damping saturated)
+    but does not beat no correction is still refused by --strict."""
+    from dataclasses import replace
+
+    from hamgrav.fit import lm
+    from hamgrav.fit.base import Outcome
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.models import load_model
+
+    iterate = lm.LevenbergMarquardt._iterate
+
+    def saturated(self, *args, **kwargs):
+        result = iterate(self, *args, **kwargs)
+        return replace(result, outcome=Outcome.DAMPING_SATURATED, message="damping saturated")
+
+    monkeypatch.setattr(lm.LevenbergMarquardt, "_iterate", saturated)
+    arcs = save_arcs(point_mass_arcs, tmp_path / "pm.h5")
+    out = tmp_path / "m.h5"
+    result = runner.invoke(app, ["fit", str(arcs), "--model", "sh:2", "-o", str(out), "--strict"])
+    assert result.exit_code == 3 and "does not clearly improve" in result.output
+    solver = load_model(out).solver
+    assert solver["outcome"] == "damping saturated" and not solver["diagnostics"]["improved"]
+
+
 def test_fit_init_continues_a_model_as_a_stage(small_arcs, tmp_path):
     from hamgrav.io.arcs import save_arcs
     from hamgrav.io.models import load_model

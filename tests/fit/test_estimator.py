@@ -308,6 +308,11 @@ def test_a_warm_start_no_step_improves_keeps_the_starting_model(small_arcs, synt
     scratch = GravityEstimator("sh", degree=2, body=synthetic_truth.body, solver=stuck)
     scratch.fit(small_arcs, validation=held_out)
     assert scratch.result_.outcome.value == "no improvement"
+    # a warm start from a model that does not beat no correction is not "kept": it failed
+    poor = GravityEstimator("sh", degree=2, body=synthetic_truth.body, solver=stuck)
+    poor.fit(small_arcs, init=np.zeros(5), validation=held_out)
+    assert poor.result_.outcome.value == "no improvement"
+    assert "kept the starting model" not in poor.result_.message
 
 
 def test_warm_starts_run_the_warm_solver(small_arcs, synthetic_truth):

@@ -15,6 +15,7 @@ from hamgrav.core.terms import (
 )
 from hamgrav.errors import PropagationError
 from hamgrav.fit.adam import Adam
+from hamgrav.fit.base import Outcome
 from hamgrav.fit.continual import ContinualFit, fit_continual
 from hamgrav.fit.estimator import GravityEstimator
 from hamgrav.fit.estimator import validation_split as split_validation
@@ -557,6 +558,24 @@ def test_lm_damping_is_floored_at_lambda_floor():
     np.testing.assert_allclose(result.history["lambda"], [0.1, 1e-2, 1e-3, 1e-3, 1e-3])
     error = np.prod([lam / (1 + lam) for lam in (0.1, 1e-2, 1e-3, 1e-3)])
     np.testing.assert_allclose(1.0 - result.params, [error], rtol=1e-5)
+
+
+def test_lm_stops_when_the_damping_passes_its_ceiling():
+    # started at the minimum, every trial is rejected and lambda grows 10x per iteration:
+    # 1 -> 10 -> 100 -> 1000, past the ceiling of 100 after the third
+    solver = LevenbergMarquardt(lambda0=1.0, lambda_ceiling=1e2, max_iter=10)
+    result = solver.solve(_OneParameterProblem(None), np.ones(1))
+    assert result.iterations == 3 and not any(result.history["accepted"][1:])
+    assert result.outcome is Outcome.NO_IMPROVEMENT and "damping saturated" in result.message
+
+
+def test_lm_a_cost_change_just_above_rtol_does_not_stop_the_fit():
+    # lambda 1e6: the first step lowers the cost by a relative 2e-6, above rtol = 1e-6
+    solver = LevenbergMarquardt(lambda0=1e6, rtol=1e-6, max_iter=3)
+    result = solver.solve(_OneParameterProblem(None), np.zeros(1))
+    rel = 1.0 - result.history["cost"][1] / result.history["cost"][0]
+    assert 1e-6 < rel < 1e-5
+    assert result.iterations == 3 and result.outcome is Outcome.ITERATION_CAP
 
 
 def test_a_validation_cost_that_does_not_change_is_no_gain():
