@@ -156,6 +156,25 @@ def test_srp_pushes_away_from_sun():
     assert np.allclose(acc, [0.0, 1.0, 0.0], atol=1e-15)
 
 
+def test_srp_sun_latitude():
+    # at t = 0 the Sun lies at latitude 30 deg in the x-z plane: pushed away from it
+    srp = SolarRadiationPressure(pressure_canonical=2.0, sun_latitude_deg=30.0)
+    x, y, z = hy.make_vars("x", "y", "z")
+    v = srp.potential(0)
+    f = hy.cfunc([hy.diff(v, q) for q in (x, y, z)], vars=[x, y, z])
+    acc = f(np.array([0.3, 0.1, 0.2]), pars=np.array([0.5]), time=0.0)
+    lat = np.radians(30.0)
+    assert np.allclose(acc, [-np.cos(lat), 0.0, -np.sin(lat)])
+
+
+def test_srp_pressure_falls_with_the_square_of_the_distance():
+    from hamgrav.units import CanonicalUnits
+
+    units = CanonicalUnits(4.892, 15465.8)
+    near = SolarRadiationPressure.pressure_for(units, distance_au=1.0)
+    assert SolarRadiationPressure.pressure_for(units, distance_au=2.0) == pytest.approx(near / 4)
+
+
 def test_srp_pressure_units():
     from hamgrav.units import CanonicalUnits
 

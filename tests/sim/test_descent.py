@@ -56,3 +56,19 @@ def test_statistics_with_not_landed():
     assert stats["p90_m"] == pytest.approx(np.percentile([1.0, 3.0, 2.0], 90))
     none = miss_statistics(truth, [Touchdown(False, 0.0, p)] * 5, 100.0)
     assert none["landed"] == 0 and none["median_m"] is None
+
+
+def test_release_states_point_inward_within_the_cone(synthetic_truth):
+    body = synthetic_truth.body
+    config = DescentConfig(count=50)
+    states, dvs = release_states(body, config, seed=4)
+    q, p = states[:, :3], states[:, 3:]
+    radius = np.linalg.norm(q, axis=1)
+    np.testing.assert_allclose(radius, config.release_radius_rb * body.brillouin_radius)
+    # the momentum is the manoeuvre (inertial velocity from rest), inward within cone_deg
+    speed = body.units.from_velocity(np.linalg.norm(p, axis=1))
+    np.testing.assert_allclose(speed, dvs, rtol=1e-12)
+    assert np.all((dvs >= config.dv_m_s[0]) & (dvs <= config.dv_m_s[1]))
+    cos_off = -np.sum(p * q, axis=1) / (np.linalg.norm(p, axis=1) * radius)
+    assert np.all(cos_off >= np.cos(np.radians(config.cone_deg)) - 1e-12)
+    assert np.degrees(np.arccos(cos_off.min())) > 0.5 * config.cone_deg  # the cone is used

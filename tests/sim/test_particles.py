@@ -34,6 +34,12 @@ def test_area_to_mass_span_and_arc_counts():
     assert ratios.min() >= 0.005 and ratios.max() <= 0.075
     # stratified: one value per log-interval, so the span is close to the full factor of 15
     assert ratios.max() / ratios.min() > 11
+    # one value in each of the 28 equal intervals of log A/m, in shuffled order
+    bins = np.floor(28 * np.log(ratios / 0.005) / np.log(15.0)).astype(int)
+    assert sorted(bins) == list(range(28)) and list(bins) != sorted(bins)
+    for seed in range(10):
+        low, high = sorted(area_to_mass_ratios(np.random.default_rng(seed), 2, (1.0, 100.0)))
+        assert low < 10.0 < high
     counts = arcs_per_particle(rng, 28, 263)
     assert counts.sum() == 263 and set(counts) == {9, 10} and (counts == 10).sum() == 11
 
@@ -94,23 +100,27 @@ def test_srp_is_in_the_truth(swarm_arcs, synthetic_truth):
 def test_a_draw_that_impacts_or_escapes_is_redrawn(synthetic_truth, monkeypatch):
     """Draws whose propagation lands or escapes are rejected and counted; the kept draw is the
     first that survives the tracking span."""
-    verdicts = iter(["landed", "escaped", "keep", "escaped", "keep", "keep"])
-    seen = []
+    verdicts = iter(["landed", "escaped", "keep", "escaped", "diverged", "keep", "keep"])
+    seen, ratios = [], []
 
     def scripted(model, ejection, area_to_mass, body, config):
         verdict = next(verdicts)
         seen.append((verdict, ejection.state.copy()))
+        ratios.append(area_to_mass)
         if verdict == "landed":
             return particles.Touchdown(True, ejection.time, ejection.state[:3], "")
-        if verdict == "escaped":
-            return particles.Touchdown(False, ejection.time, ejection.state[:3], "escaped")
+        if verdict in ("escaped", "diverged"):
+            return particles.Touchdown(False, ejection.time, ejection.state[:3], verdict)
         return particles.Touchdown(False, ejection.time + 1.0, ejection.state[:3], "timed out")
 
     monkeypatch.setattr(particles, "ejection_outcome", scripted)
     arcs = simulate_swarm(synthetic_truth, SMALL, seed=3)
     info = arcs.trajectory_info
-    assert info["redraws"].tolist() == [2, 1, 0]
+    assert info["redraws"].tolist() == [2, 2, 0]  # a diverged draw is redrawn too
     assert info["impacted"].tolist() == [1, 0, 0] and info["escaped"].tolist() == [1, 1, 0]
+    # every draw of a particle has that particle's A/m
+    per_draw = np.repeat(info["area_to_mass_m2_kg"], [3, 3, 1])
+    assert np.array_equal(ratios, per_draw)
     kept = [s for v, s in seen if v == "keep"]
     assert all(np.array_equal(a, b) for a, b in zip(info["initial_state"], kept, strict=True))
     rejected = [s for v, s in seen if v != "keep"]
@@ -159,3 +169,20 @@ def test_bad_swarm_settings_are_named():
         SwarmConfig(particles=2, arcs=6, window_s=100.0)
     with pytest.raises(InputError, match="area_to_mass_m2_kg must be 0 < low <= high"):
         SwarmConfig(area_to_mass_m2_kg=(0.1, 0.01))
+
+
+def test_particle_noise_is_the_stated_noise(swarm_arcs, synthetic_truth):
+    """The noise applied to the samples has the spread the arcs record, in position and in
+    (rotating-frame) velocity."""
+    from hamgrav.units import momentum_to_velocity
+
+    units = synthetic_truth.body.units
+    noisy, true = swarm_arcs.states, swarm_arcs.true_states
+    dv = momentum_to_velocity(noisy[..., :3], noisy[..., 3:]) - momentum_to_velocity(
+        true[..., :3], true[..., 3:]
+    )  # the states hold momenta: the noise is on the rotating-frame velocity
+    sigma_r = float(np.std(noisy[..., :3] - true[..., :3])) * units.length_m
+    sigma_v = float(np.std(dv)) * units.length_m / units.time_s
+    assert sigma_r == pytest.approx(swarm_arcs.sigma_r_m, rel=0.2)
+    assert sigma_v == pytest.approx(swarm_arcs.sigma_v_m_s, rel=0.2)
+    assert swarm_arcs.sigma_v_m_s < 0.5 * swarm_arcs.sigma_r_m / units.time_s

@@ -8,6 +8,7 @@ from hamgrav.sim.tracking import (
     OrbitFamily,
     SimulationError,
     TrackingConfig,
+    arc_start_times,
     circular_orbit_state,
     observe,
     orbit_grid,
@@ -118,3 +119,14 @@ def test_window_too_short(synthetic_truth):
     cfg = TrackingConfig(arcs_per_orbit=50, window_spin_periods=0.05)
     with pytest.raises(SimulationError, match="tracking window is too short"):
         simulate_orbits(synthetic_truth, [OrbitFamily(1.5, 10.0)], cfg)
+
+
+def test_each_arc_lies_in_its_own_slot(rng):
+    # arcs exactly as long as their slots start at the slots' starts
+    np.testing.assert_allclose(arc_start_times(rng, 2, 2.0, 1.0), [0.0, 1.0])
+    starts = arc_start_times(rng, 7, 10.0, 0.9)
+    slot = 10.0 / 7
+    assert np.all(starts >= np.arange(7) * slot)
+    assert np.all(starts + 0.9 <= (np.arange(7) + 1) * slot + 1e-12)
+    with pytest.raises(SimulationError, match="too short for 7 arcs"):
+        arc_start_times(rng, 7, 6.0, 0.9)
