@@ -37,6 +37,7 @@ import math
 import os
 import re
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,7 @@ from astropy.time import Time
 from ..bodies.catalogue import Body
 from ..bodies.rotation import RotationModel
 from ..core.arcs import NO_TRUTH, Arcs
+from ..core.geometry import points_inside
 from ..core.mascons import MasconSet
 from ..errors import DatasetError, HamgravWarning, InputError
 from .arcs import MAX_STATE
@@ -453,15 +455,15 @@ def _check_positions(q, arc_files, body, origin_m, sigma_r) -> None:
     import trimesh
 
     units = body.units
-    vertices = (np.asarray(body.mesh_m.vertices) - origin_m) / units.length_m
-    reach = float(np.linalg.norm(vertices, axis=1).max())
+    framed = replace(body, origin_m=tuple(float(v) for v in origin_m))  # the files' frame
+    reach = framed.brillouin_radius
     points = np.asarray(q, dtype=float)
     radius = np.linalg.norm(points, axis=-1)
     near = np.argwhere(radius < reach)  # (arc, sample) of the points that can be inside
     if len(near):
-        mesh = trimesh.Trimesh(vertices, np.asarray(body.mesh_m.faces), process=False)
+        mesh = framed.mesh
         candidates = points[near[:, 0], near[:, 1]]
-        inside = mesh.contains(candidates)
+        inside = points_inside(np.asarray(mesh.triangles), candidates)
         if np.any(inside):
             depth = trimesh.proximity.signed_distance(mesh, candidates[inside])
             tolerance = max(INSIDE_TOLERANCE_RB * reach, 5.0 * sigma_r)
