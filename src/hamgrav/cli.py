@@ -696,6 +696,18 @@ def fit(
             raise typer.Exit(code=3)
 
 
+def _check_body_model(arcs, fitted, source, model: str, fix: str) -> None:
+    """Refuse arcs (read from ``source``) whose GM or spin period differs from the model's
+    (named ``model`` in the message): they are of another body model, so the model's
+    canonical units do not fit them."""
+    for name, unit in (("gm_m3_s2", "m^3/s^2"), ("spin_period_s", "s")):
+        if not math.isclose(getattr(arcs, name), getattr(fitted, name), rel_tol=1e-12):
+            raise InputError(
+                f"arcs {source} have {name} {getattr(arcs, name)!r} {unit}, {model} "
+                f"{getattr(fitted, name)!r} {unit} (another body model); {fix}"
+            )
+
+
 def _same_origin(a, b) -> bool:
     """Whether two frame origins [m] are the same frame: within a micrometre (truths of one
     body drawn with other seeds differ by round-off in their centre of mass; their own
@@ -737,13 +749,8 @@ def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
             f"arcs {source} are of body {arcs.body_name!r}, model {model_file} of "
             f"{fitted.body_name!r}; pass the arcs of this model's campaign with --arcs"
         )
-    for name, unit in (("gm_m3_s2", "m^3/s^2"), ("spin_period_s", "s")):
-        if not math.isclose(getattr(arcs, name), getattr(fitted, name), rel_tol=1e-12):
-            raise InputError(
-                f"arcs {source} have {name} {getattr(arcs, name)!r} {unit}, model {model_file} "
-                f"{getattr(fitted, name)!r} {unit} (another body model); pass the arcs of "
-                "this model's campaign with --arcs"
-            )
+    fix = "pass the arcs of this model's campaign with --arcs"
+    _check_body_model(arcs, fitted, source, f"model {model_file}", fix)
     if not _same_origin(arcs.body_origin_m, fitted.body_origin_m):
         raise InputError(
             f"arcs {source} are in a frame with origin {arcs.body_origin_m} m, model "
@@ -1062,13 +1069,13 @@ def _formal_covariance(fitted, arcs_file: Path | None):
         raise InputError(
             f"--arcs: arcs of body {arcs.body_name!r}, the model is of {fitted.body_name!r}"
         )
-    for name in ("gm_m3_s2", "spin_period_s"):
-        if not math.isclose(getattr(arcs, name), getattr(fitted, name), rel_tol=1e-12):
-            raise InputError(
-                f"arcs {source} have {name} {getattr(arcs, name)!r}, the model "
-                f"{getattr(fitted, name)!r} (another body model; m^3/s^2, s); pass the model's "
-                "arcs with --arcs, or export without formal errors (--no-errors)"
-            )
+    _check_body_model(
+        arcs,
+        fitted,
+        source,
+        "the model",
+        "pass the model's arcs with --arcs, or export without formal errors (--no-errors)",
+    )
     if not has_noise(arcs):
         return None, f"no formal errors: {source} records no tracking noise (noise-free arcs)"
     return formal_covariance(fitted, arcs), f"formal errors from {source}"
