@@ -507,11 +507,45 @@ def test_swarm_tiny_paper_network(tmp_path, monkeypatch):
     assert "paper-protocol network gravity-only" in readme
 
 
+def test_swarm_tiny_harmonic_scan(tmp_path):
+    out = tmp_path / "swarm"
+    args = [
+        "experiment", "swarm", "--body", "synthetic", "--n-mascons", "60", "--particles", "3",
+        "--arcs", "6", "--samples-per-arc", "10", "--window-s", "2400", "--sh-degrees", "2",
+        "--gravity-only-degree", "2", "--hidden", "4", "--lm-iterations", "3",
+        "--harmonic-scan", "0,10,1e3", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert " --harmonic-scan 0,10,1e3 " in data["command"]
+    rep = data["repetitions"][0]
+    assert set(rep["harmonic_scan"]) == {"joint", "gravity-only"}
+    for kind, scan in rep["harmonic_scan"].items():
+        assert scan["weights"] == [0.0, 10.0, 1000.0]
+        costs = scan["held_out_cost"]
+        # the weight changes the fit, and the kept fit is the one of lowest held-out cost
+        assert len(set(costs)) == 3
+        k = costs.index(min(costs))
+        assert scan["chosen"] == scan["weights"][k]
+        kept = rep["fits"][kind]["network"]
+        assert kept["diagnostics"]["relative_cost"] == pytest.approx(costs[k], rel=1e-5)
+        assert kept.get("harmonic", {}).get("weight", 0.0) == scan["chosen"]
+    readme = (out / "README.md").read_text()
+    assert "harmonic penalty weight chosen per fit from 0, 10, 1000" in readme
+    assert "- gravity-only network: " in readme
+
+
 def test_swarm_option_errors(tmp_path):
     args = ["experiment", "swarm", "--window-s", "100", "-o", str(tmp_path / "x")]
     result = runner.invoke(app, args)
     assert result.exit_code == 2
     assert "raise window_s to at least" in result.output
+    assert not (tmp_path / "x").exists()
+    args = ["experiment", "swarm", "--harmonic-scan", "1e-3", "-o", str(tmp_path / "x")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    assert "--harmonic-scan needs two or more weights" in result.output
     assert not (tmp_path / "x").exists()
 
 

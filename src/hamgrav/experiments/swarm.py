@@ -12,6 +12,9 @@ equations:
   coefficients unknown);
 - gravity-only: the same SRP-active arcs with no SRP term in the model: SH of degree
   ``gravity_only_degree`` and the same network;
+- with ``harmonic_scan``, each network-best fit (joint and gravity-only, each on its own) is
+  made once per harmonic-penalty weight and the fit with the lowest cost on its held-out
+  arcs is kept: a choice a mission can make, with no truth;
 - with ``paper_network``, also the paper's protocol network (preset ``network``: Adam, no
   harmonic penalty, the same hidden layers) both ways, as rows ``network-adam``.
 
@@ -114,6 +117,13 @@ class SwarmExperimentConfig(ExperimentConfig):
         (16, 16), "Hidden layer sizes of the network.", at_least=1, nonempty=True
     )
     harmonic: float = harmonic_option("network")
+    harmonic_scan: tuple[float, ...] = option(
+        (),
+        "Weights of the harmonic penalty to scan for each 'network' fit (joint and "
+        "gravity-only, each on its own): every weight is fitted and the fit with the lowest "
+        "cost on its held-out arcs is kept (no truth). Empty: the single weight --harmonic.",
+        at_least=0,
+    )
     lm_iterations: int = lm_iterations_option("LM iteration cap of the network fits.")
     paper_network: bool = option(
         False,
@@ -138,6 +148,11 @@ class SwarmExperimentConfig(ExperimentConfig):
                 raise InputError(f"{label(name)} must be two numbers: low,high")
         if self.harmonic < 0:
             raise InputError(f"{label('harmonic')} must be >= 0 (0: off), got {self.harmonic}")
+        if len(self.harmonic_scan) == 1:
+            raise InputError(
+                f"{label('harmonic_scan')} needs two or more weights to choose from; for one "
+                f"weight give {label('harmonic')}"
+            )
         try:
             self.swarm()
         except InputError as exc:
@@ -160,6 +175,39 @@ class SwarmExperimentConfig(ExperimentConfig):
             reflectivity=self.reflectivity,
             sun_latitude_deg=self.sun_latitude_deg,
         )
+
+
+def _fit_harmonic_scan(label, arcs, truth, ctx, settings: dict, weights) -> tuple:
+    """Fit a network row once per harmonic-penalty weight and keep the fit with the lowest
+    cost on its held-out arcs. Every fit has the same seed, so the same held-out arcs and
+    starting network: their held-out costs relative to no correction rank them as their
+    held-out costs do. Returns the kept estimator and {"weights": [...], "held_out_cost":
+    [...], "chosen": weight}."""
+    fitted, costs = [], []
+    for w in weights:
+        est = fit(
+            f"{label} (harmonic {w:g})", arcs, truth, ctx, **{**settings, "harmonic": w or None}
+        )
+        if est.diagnostics_.get("checked_on") != "validation arcs":
+            raise InputError(
+                "--harmonic-scan chooses by the cost on held-out arcs, and this fit holds none "
+                "out: give the network a validation fraction > 0"
+            )
+        fitted.append(est)
+        costs.append(float(est.diagnostics_["relative_cost"]))
+    k = int(np.argmin(costs))
+    ctx.say(
+        f"{label}: harmonic weight {weights[k]:g} kept (held-out cost relative to no "
+        "correction: "
+        + ", ".join(f"{w:g} {c:.4f}" for w, c in zip(weights, costs, strict=True))
+        + ")"
+    )
+    scan = {
+        "weights": [float(w) for w in weights],
+        "held_out_cost": [round(c, 6) for c in costs],
+        "chosen": float(weights[k]),
+    }
+    return fitted[k], scan
 
 
 def _median_relative_error(estimated, true) -> float:
@@ -208,6 +256,7 @@ class SwarmExperiment(Experiment):
             ("joint", f"sh{d}"): {"term": "sh", "degree": d, **joint} for d in config.sh_degrees
         }
         rows[("joint", "network")] = {**best, **joint}
+        weights = config.harmonic_scan or (config.harmonic,)
         rows[("gravity-only", f"sh{config.gravity_only_degree}")] = {
             "term": "sh",
             "degree": config.gravity_only_degree,
@@ -221,10 +270,14 @@ class SwarmExperiment(Experiment):
         field_error: dict = {"joint": {}, "gravity-only": {}}
         estimated: dict[str, list[float]] = {}
         fits: dict = {"joint": {}, "gravity-only": {}}
+        scans: dict = {}
         for (kind, model), settings in rows.items():
             label = f"{kind}/{model}"
             start = time.perf_counter()
-            est = fit(label, arcs, truth, ctx, **settings)
+            if model == "network" and len(weights) > 1:
+                est, scans[kind] = _fit_harmonic_scan(label, arcs, truth, ctx, settings, weights)
+            else:
+                est = fit(label, arcs, truth, ctx, **settings)
             stages[label] = round(time.perf_counter() - start, 1)
             field_error[kind][model] = errors_of(est.model_, est.params_, truth, sets)
             fits[kind][model] = est.fitted_.solver
@@ -264,6 +317,8 @@ class SwarmExperiment(Experiment):
             "wall_s_stages": stages,
             "fits": fits,
         }
+        if scans:
+            result["harmonic_scan"] = scans
         length = truth.body.units.length_m
         artefacts = {
             "vertices_m": np.asarray(truth.body.mesh.vertices) * length,
@@ -340,6 +395,10 @@ def swarm_figure(result: dict, artefacts: dict) -> Figure:
     ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def _weights(values) -> str:
+    return ", ".join(f"{v:g}" for v in values)
 
 
 def _count(values: list[float], test) -> str:
@@ -439,7 +498,14 @@ def swarm_readme(report: dict) -> list[str]:
         "The network rows are the network-best "
         "configuration (LM, damping floor 1e-8, best validation iterate, "
         f"{cfg['lm_iterations']} iterations, hidden {cfg['hidden']}"
-        + (f", harmonic penalty {cfg['harmonic']:g}" if cfg.get("harmonic") else "")
+        + (
+            f", harmonic penalty weight chosen per fit from {_weights(cfg['harmonic_scan'])} "
+            "by the cost on its held-out arcs"
+            if len(cfg.get("harmonic_scan") or ()) > 1
+            else f", harmonic penalty {cfg['harmonic']:g}"
+            if cfg.get("harmonic")
+            else ""
+        )
         + ") with one member, not the "
         "three-member ensemble: an ensemble fits each member on its own and cannot share "
         "per-trajectory parameters, so it cannot estimate A/m. Both network rows use one "
@@ -455,6 +521,12 @@ def swarm_readme(report: dict) -> list[str]:
         "Relative field error of every fit (median, min-max):",
         "",
     ]
+    if "harmonic_scan" in first:
+        scan_lines = ["Harmonic penalty weight kept per repetition (held-out cost, no truth):", ""]
+        for kind in first["harmonic_scan"]:
+            chosen = [f"{r['harmonic_scan'][kind]['chosen']:g}" for r in reps]
+            scan_lines.append(f"- {kind} network: " + ", ".join(chosen))
+        lines[-2:-2] = [*scan_lines, ""]
     agg = report["aggregate"]["field_error"]
     sets = list(next(iter(next(iter(agg.values())).values())))
     lines += ["| fit | model | " + " | ".join(sets) + " |", "|---|---|" + "---|" * len(sets)]
