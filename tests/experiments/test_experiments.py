@@ -15,6 +15,11 @@ TINY_CAMPAIGN = [
     "--body", "synthetic", "--n-mascons", "60", "--orbits", "2", "--arcs-per-orbit", "2",
     "--window-spin-periods", "0.5", "--min-radius-rb", "1.0",
 ]  # fmt: skip
+#: A swarm of three particles on the synthetic body with a tiny network, for the swarm tests.
+TINY_SWARM = [
+    "--body", "synthetic", "--n-mascons", "60", "--particles", "3", "--samples-per-arc", "10",
+    "--window-s", "2400", "--gravity-only-degree", "2", "--hidden", "4",
+]  # fmt: skip
 
 
 def test_descent_tiny(tmp_path):
@@ -433,9 +438,8 @@ def test_deep_tiny_without_the_later_parts(tmp_path):
 def test_swarm_tiny(tmp_path):
     out = tmp_path / "swarm"
     args = [
-        "experiment", "swarm", "--body", "synthetic", "--n-mascons", "60", "--particles", "3",
-        "--arcs", "5", "--samples-per-arc", "10", "--window-s", "2400", "--sh-degrees", "2,3",
-        "--gravity-only-degree", "2", "--hidden", "4", "--lm-iterations", "3", "-o", str(out),
+        "experiment", "swarm", *TINY_SWARM, "--arcs", "5", "--sh-degrees", "2,3",
+        "--lm-iterations", "3", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -482,10 +486,8 @@ def test_swarm_tiny_paper_network(tmp_path, monkeypatch):
     monkeypatch.setitem(PRESETS["network"], "adam_steps", 12)
     out = tmp_path / "swarm"
     args = [
-        "experiment", "swarm", "--body", "synthetic", "--n-mascons", "60", "--particles", "3",
-        "--arcs", "5", "--samples-per-arc", "10", "--window-s", "2400", "--sh-degrees", "2",
-        "--gravity-only-degree", "2", "--hidden", "4", "--lm-iterations", "2",
-        "--paper-network", "-o", str(out),
+        "experiment", "swarm", *TINY_SWARM, "--arcs", "5", "--sh-degrees", "2",
+        "--lm-iterations", "2", "--paper-network", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -510,10 +512,8 @@ def test_swarm_tiny_paper_network(tmp_path, monkeypatch):
 def test_swarm_tiny_harmonic_scan(tmp_path):
     out = tmp_path / "swarm"
     args = [
-        "experiment", "swarm", "--body", "synthetic", "--n-mascons", "60", "--particles", "3",
-        "--arcs", "6", "--samples-per-arc", "10", "--window-s", "2400", "--sh-degrees", "2",
-        "--gravity-only-degree", "2", "--hidden", "4", "--lm-iterations", "3",
-        "--harmonic-scan", "0,10,1e3", "-o", str(out),
+        "experiment", "swarm", *TINY_SWARM, "--arcs", "6", "--sh-degrees", "2",
+        "--lm-iterations", "3", "--harmonic-scan", "0,10,1e3", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output

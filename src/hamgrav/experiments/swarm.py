@@ -256,7 +256,6 @@ class SwarmExperiment(Experiment):
             ("joint", f"sh{d}"): {"term": "sh", "degree": d, **joint} for d in config.sh_degrees
         }
         rows[("joint", "network")] = {**best, **joint}
-        weights = config.harmonic_scan or (config.harmonic,)
         rows[("gravity-only", f"sh{config.gravity_only_degree}")] = {
             "term": "sh",
             "degree": config.gravity_only_degree,
@@ -274,8 +273,10 @@ class SwarmExperiment(Experiment):
         for (kind, model), settings in rows.items():
             label = f"{kind}/{model}"
             start = time.perf_counter()
-            if model == "network" and len(weights) > 1:
-                est, scans[kind] = _fit_harmonic_scan(label, arcs, truth, ctx, settings, weights)
+            if model == "network" and config.harmonic_scan:  # check(): two weights or more
+                est, scans[kind] = _fit_harmonic_scan(
+                    label, arcs, truth, ctx, settings, config.harmonic_scan
+                )
             else:
                 est = fit(label, arcs, truth, ctx, **settings)
             stages[label] = round(time.perf_counter() - start, 1)
@@ -397,10 +398,6 @@ def swarm_figure(result: dict, artefacts: dict) -> Figure:
     return fig
 
 
-def _weights(values) -> str:
-    return ", ".join(f"{v:g}" for v in values)
-
-
 def _count(values: list[float], test) -> str:
     return f"{sum(bool(test(v)) for v in values)} of {len(values)}"
 
@@ -499,9 +496,10 @@ def swarm_readme(report: dict) -> list[str]:
         "configuration (LM, damping floor 1e-8, best validation iterate, "
         f"{cfg['lm_iterations']} iterations, hidden {cfg['hidden']}"
         + (
-            f", harmonic penalty weight chosen per fit from {_weights(cfg['harmonic_scan'])} "
-            "by the cost on its held-out arcs"
-            if len(cfg.get("harmonic_scan") or ()) > 1
+            ", harmonic penalty weight chosen per fit from "
+            + ", ".join(f"{w:g}" for w in cfg["harmonic_scan"])
+            + " by the cost on its held-out arcs"
+            if cfg.get("harmonic_scan")
             else f", harmonic penalty {cfg['harmonic']:g}"
             if cfg.get("harmonic")
             else ""
