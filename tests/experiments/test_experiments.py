@@ -439,7 +439,7 @@ def test_swarm_tiny(tmp_path):
     out = tmp_path / "swarm"
     args = [
         "experiment", "swarm", *TINY_SWARM, "--arcs", "5", "--sh-degrees", "2,3",
-        "--lm-iterations", "3", "-o", str(out),
+        "--lm-iterations", "3", "--harmonic-scan", "", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -448,7 +448,8 @@ def test_swarm_tiny(tmp_path):
     assert rep["n_arcs"] == 5 and rep["n_particles"] == 3
     assert rep["draws"]["total"] == 3 + rep["draws"]["rejected"]
     true = rep["area_to_mass"]["true"]
-    assert len(true) == 3 and all(0.02 <= v <= 0.3 for v in true)
+    assert len(true) == 3 and all(0.055 <= v <= 0.825 for v in true)
+    assert "harmonic_scan" not in rep  # "" turns the default scan off
     assert set(rep["area_to_mass"]) == {"true", "sh2", "sh3", "network"}
     assert set(rep["area_to_mass_median_error"]) == {"sh2", "sh3", "network"}
     # the joint SH fits moved every A/m from its start at zero
@@ -487,7 +488,7 @@ def test_swarm_tiny_paper_network(tmp_path, monkeypatch):
     out = tmp_path / "swarm"
     args = [
         "experiment", "swarm", *TINY_SWARM, "--arcs", "5", "--sh-degrees", "2",
-        "--lm-iterations", "2", "--paper-network", "-o", str(out),
+        "--lm-iterations", "2", "--harmonic-scan", "", "--paper-network", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output

@@ -12,9 +12,9 @@ equations:
   coefficients unknown);
 - gravity-only: the same SRP-active arcs with no SRP term in the model: SH of degree
   ``gravity_only_degree`` and the same network;
-- with ``harmonic_scan``, each network-best fit (joint and gravity-only, each on its own) is
-  made once per harmonic-penalty weight and the fit with the lowest cost on its held-out
-  arcs is kept: a choice a mission can make, with no truth;
+- with ``harmonic_scan`` (the default), each network-best fit (joint and gravity-only, each
+  on its own) is made once per harmonic-penalty weight and the fit with the lowest cost on
+  its held-out arcs is kept: a choice a mission can make, with no truth;
 - with ``paper_network``, also the paper's protocol network (preset ``network``: Adam, no
   harmonic penalty, the same hidden layers) both ways, as rows ``network-adam``.
 
@@ -85,10 +85,11 @@ class SwarmExperimentConfig(ExperimentConfig):
     cadence_s: float = option(39.0, "Time between samples [s].", above=0)
     window_s: float = option(16_200.0, "Tracking span of each particle from ejection [s].", above=0)
     area_to_mass_m2_kg: tuple[float, ...] = option(
-        (0.02, 0.3),
-        "A/m range [m^2/kg] (log-uniform, stratified over the particles): 0.02-0.3 are "
-        "spheres of 2.5-0.25 cm diameter at 2 g/cm^3, the sizes reported for Bennu's "
-        "particles.",
+        (0.055, 0.825),
+        "A/m range [m^2/kg] (log-uniform, stratified over the particles): 0.055-0.825 are "
+        "spheres of 1.4-0.09 cm diameter at 2 g/cm^3, the SRP strength at which the paper's "
+        "swarm statements hold (0.02-0.3: 3.8-0.25 cm, the sizes reported for Bennu's "
+        "particles, gives too little SRP for them).",
         above=0,
     )
     speed_escape_fraction: tuple[float, ...] = option(
@@ -118,10 +119,11 @@ class SwarmExperimentConfig(ExperimentConfig):
     )
     harmonic: float = harmonic_option("network")
     harmonic_scan: tuple[float, ...] = option(
-        (),
+        (1e-5, 1e-4, 1e-3, 1e-2, 1e-1),
         "Weights of the harmonic penalty to scan for each 'network' fit (joint and "
         "gravity-only, each on its own): every weight is fitted and the fit with the lowest "
-        "cost on its held-out arcs is kept (no truth). Empty: the single weight --harmonic.",
+        'cost on its held-out arcs is kept (no truth). Empty (""): the single weight '
+        "--harmonic.",
         at_least=0,
     )
     lm_iterations: int = lm_iterations_option("LM iteration cap of the network fits.")
