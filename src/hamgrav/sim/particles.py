@@ -72,7 +72,8 @@ class SwarmConfig:
             one per equal slot, and the particle must neither impact nor escape over it.
         area_to_mass_m2_kg: (low, high) A/m range [m^2/kg]; the particles' values are
             log-uniform and stratified (one per equal log-interval, shuffled), so they span
-            nearly the whole range.
+            nearly the whole range. The default is the strength at which the paper's swarm
+            statements hold (see results/swarm-bennu).
         speed_escape_fraction: (low, high) ejection speed relative to the surface, as a
             fraction of the local escape speed sqrt(2 GM / r) (uniform).
         cone_deg: half-angle [deg] of the cone about the face normal that holds the ejection
@@ -96,7 +97,7 @@ class SwarmConfig:
     samples_per_arc: int = 40
     cadence_s: float = 39.0
     window_s: float = 16_200.0
-    area_to_mass_m2_kg: tuple[float, float] = (0.02, 0.3)
+    area_to_mass_m2_kg: tuple[float, float] = (0.055, 0.825)
     speed_escape_fraction: tuple[float, float] = (0.6, 1.0)
     cone_deg: float = 45.0
     lift_m: float = 0.5
