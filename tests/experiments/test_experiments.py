@@ -3,6 +3,7 @@
 import json
 import re
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -514,7 +515,8 @@ def test_swarm_tiny_harmonic_scan(tmp_path):
     out = tmp_path / "swarm"
     args = [
         "experiment", "swarm", *TINY_SWARM, "--arcs", "6", "--sh-degrees", "2",
-        "--lm-iterations", "3", "--harmonic-scan", "0,10,1e3", "-o", str(out),
+        "--lm-iterations", "3", "--harmonic-scan", "0,10,1e3", "--harmonic-scan-rule", "lowest",
+        "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -523,7 +525,7 @@ def test_swarm_tiny_harmonic_scan(tmp_path):
     rep = data["repetitions"][0]
     assert set(rep["harmonic_scan"]) == {"joint", "gravity-only"}
     for kind, scan in rep["harmonic_scan"].items():
-        assert scan["weights"] == [0.0, 10.0, 1000.0]
+        assert scan["weights"] == [0.0, 10.0, 1000.0] and scan["rule"] == "lowest"
         costs = scan["held_out_cost"]
         # the weight changes the fit, and the kept fit is the one of lowest held-out cost
         assert len(set(costs)) == 3
@@ -537,6 +539,25 @@ def test_swarm_tiny_harmonic_scan(tmp_path):
     assert "- gravity-only network: " in readme
 
 
+def test_choose_weight_rules():
+    from hamgrav.experiments.swarm import choose_weight
+
+    weights = [1e-3, 1e-1, 1e-2]  # the rule ranks weights by value, not by position
+    base = np.linspace(1.0, 2.0, 40)
+    # 1e-2 is lowest, but 1e-1 is above it by 0.01 on average against +-0.2 arc to arc
+    # (standard error 0.2 / sqrt(40) = 0.03): the arcs cannot tell them apart
+    close = np.stack([base + 0.5, base + 0.01 + 0.2 * (-1.0) ** np.arange(40), base])
+    assert choose_weight(weights, close, "lowest") == 2
+    assert choose_weight(weights, close, "one-standard-error") == 1
+    # clearly worse on every arc: the strongest weight is not kept
+    apart = np.stack([base + 0.5, base + 0.3, base])
+    assert choose_weight(weights, apart, "one-standard-error") == 2
+    # a single held-out arc has no standard error: the lowest is kept
+    assert choose_weight(weights, close[:, :1], "one-standard-error") == int(np.argmin(close[:, 0]))
+    with pytest.raises(ValueError, match="unknown rule"):
+        choose_weight(weights, close, "median")
+
+
 def test_swarm_option_errors(tmp_path):
     args = ["experiment", "swarm", "--window-s", "100", "-o", str(tmp_path / "x")]
     result = runner.invoke(app, args)
@@ -547,6 +568,11 @@ def test_swarm_option_errors(tmp_path):
     result = runner.invoke(app, args)
     assert result.exit_code == 2
     assert "--harmonic-scan needs two or more weights" in result.output
+    assert not (tmp_path / "x").exists()
+    args = ["experiment", "swarm", "--harmonic-scan-rule", "best", "-o", str(tmp_path / "x")]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    assert "--harmonic-scan-rule must be one of one-standard-error, lowest" in result.output
     assert not (tmp_path / "x").exists()
 
 

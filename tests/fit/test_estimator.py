@@ -197,6 +197,22 @@ def test_a_fit_that_learns_says_so(small_arcs, synthetic_truth):
     assert est.result_.outcome.value == "converged"
 
 
+def test_the_checked_arc_costs_add_up_to_the_relative_cost(small_arcs, synthetic_truth):
+    held_out = np.array([1, 4, 6])
+    est = GravityEstimator("sh", degree=2, body=synthetic_truth.body)
+    est.fit(small_arcs, validation=held_out)
+    costs = est.checked_arc_costs_
+    assert costs.fitted.shape == costs.none.shape == (3,)
+    assert costs.fitted.sum() / costs.none.sum() == pytest.approx(
+        est.diagnostics_["relative_cost"], rel=1e-12
+    )
+    assert "arc_costs" not in est.diagnostics_  # kept out of what is reported
+    # each is the cost of that arc alone, at the fitted parameters
+    problem = est._problem(est.model_, small_arcs)
+    for k, arc in enumerate(held_out):
+        assert costs.fitted[k] == pytest.approx(problem.cost(est.params_, [arc]), rel=1e-12)
+
+
 def test_an_ensemble_is_the_mean_of_members_fitted_on_their_own(small_arcs, synthetic_truth):
     settings = {"term": "network", "hidden": (4,), "solver": LevenbergMarquardt(max_iter=3)}
     held_out = np.array([2, 6])

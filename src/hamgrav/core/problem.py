@@ -227,6 +227,12 @@ class ArcProblem:
         r = self.residuals(theta, arc_indices)
         return 0.5 * float(np.sum(r * r))
 
+    def arc_costs(self, theta, arc_indices=None) -> np.ndarray:
+        """r.r / 2 of each selected arc, shape (n_arcs,) (canonical; :meth:`cost` is their
+        sum)."""
+        r = self.residuals(theta, arc_indices)
+        return 0.5 * np.sum(r * r, axis=(1, 2))
+
     def design(self, theta, arc_indices=None):
         """(r, A) with r (N,) and A (N, n_params) for N = arcs x samples x 6 (materialised;
         whitened when a whitening was given)."""

@@ -13,8 +13,9 @@ equations:
 - gravity-only: the same SRP-active arcs with no SRP term in the model: SH of degree
   ``gravity_only_degree`` and the same network;
 - with ``harmonic_scan`` (the default), each network-best fit (joint and gravity-only, each
-  on its own) is made once per harmonic-penalty weight and the fit with the lowest cost on
-  its held-out arcs is kept: a choice a mission can make, with no truth;
+  on its own) is made once per harmonic-penalty weight, and the fit kept is chosen from the
+  costs on its held-out arcs by ``harmonic_scan_rule`` (:func:`choose_weight`): a choice a
+  mission can make, with no truth;
 - with ``paper_network``, also the paper's protocol network (preset ``network``: Adam, no
   harmonic penalty, the same hidden layers) both ways, as rows ``network-adam``.
 
@@ -55,7 +56,14 @@ from .runner import (
     summarise,
 )
 
-__all__ = ["SwarmExperimentConfig", "SwarmExperiment", "PAPER_SWARM", "swarm_readme"]
+__all__ = [
+    "SwarmExperimentConfig",
+    "SwarmExperiment",
+    "PAPER_SWARM",
+    "SCAN_RULES",
+    "choose_weight",
+    "swarm_readme",
+]
 
 #: The paper's numbers: A/m median relative error of the joint fits (fraction) and the field
 #: error at 30 m altitude (1 = no correction).
@@ -88,8 +96,8 @@ class SwarmExperimentConfig(ExperimentConfig):
         (0.055, 0.825),
         "A/m range [m^2/kg] (log-uniform, stratified over the particles): 0.055-0.825 are "
         "spheres of 1.4-0.09 cm diameter at 2 g/cm^3, the SRP strength at which the paper's "
-        "swarm statements hold (0.02-0.3: 3.8-0.25 cm, the sizes reported for Bennu's "
-        "particles, gives too little SRP for them).",
+        "swarm statements come closest to holding together (0.02-0.3: 3.8-0.25 cm, the "
+        "sizes reported for Bennu's particles, gives too little SRP for them).",
         above=0,
     )
     speed_escape_fraction: tuple[float, ...] = option(
@@ -126,6 +134,13 @@ class SwarmExperimentConfig(ExperimentConfig):
         "--harmonic.",
         at_least=0,
     )
+    harmonic_scan_rule: str = option(
+        "one-standard-error",
+        "How the scan chooses: 'lowest' keeps the weight of lowest held-out cost; "
+        "'one-standard-error' the strongest weight whose held-out cost is within one standard "
+        "error (paired over the held-out arcs) of the lowest, so that the more harmonic field "
+        "is kept when the held-out arcs cannot tell the fits apart.",
+    )
     lm_iterations: int = lm_iterations_option("LM iteration cap of the network fits.")
     paper_network: bool = option(
         False,
@@ -150,6 +165,11 @@ class SwarmExperimentConfig(ExperimentConfig):
                 raise InputError(f"{label(name)} must be two numbers: low,high")
         if self.harmonic < 0:
             raise InputError(f"{label('harmonic')} must be >= 0 (0: off), got {self.harmonic}")
+        if self.harmonic_scan_rule not in SCAN_RULES:
+            raise InputError(
+                f"{label('harmonic_scan_rule')} must be one of {', '.join(SCAN_RULES)}, got "
+                f"{self.harmonic_scan_rule!r}"
+            )
         if len(self.harmonic_scan) == 1:
             raise InputError(
                 f"{label('harmonic_scan')} needs two or more weights to choose from; for one "
@@ -179,13 +199,38 @@ class SwarmExperimentConfig(ExperimentConfig):
         )
 
 
-def _fit_harmonic_scan(label, arcs, truth, ctx, settings: dict, weights) -> tuple:
-    """Fit a network row once per harmonic-penalty weight and keep the fit with the lowest
-    cost on its held-out arcs. Every fit has the same seed, so the same held-out arcs and
-    starting network: their held-out costs relative to no correction rank them as their
-    held-out costs do. Returns the kept estimator and {"weights": [...], "held_out_cost":
-    [...], "chosen": weight}."""
-    fitted, costs = [], []
+#: How a harmonic-weight scan chooses among its fits (see :func:`choose_weight`).
+SCAN_RULES = ("one-standard-error", "lowest")
+
+
+def choose_weight(weights, arc_costs, rule: str) -> int:
+    """Index of the weight ``rule`` keeps, given each fit's costs on the same held-out arcs
+    (``arc_costs``: one row per weight, one column per arc, any common unit).
+
+    ``lowest``: the fit of lowest total cost. ``one-standard-error`` (the one-standard-error
+    rule of cross-validation): the largest weight whose mean cost over the arcs exceeds the
+    lowest fit's by at most one standard error of the paired per-arc differences."""
+    costs = np.asarray(arc_costs, dtype=float)
+    best = int(np.argmin(costs.sum(axis=1)))
+    if rule == "lowest":
+        return best
+    if rule != "one-standard-error":
+        raise ValueError(f"unknown rule {rule!r}; one of {SCAN_RULES}")
+    diff = costs - costs[best]
+    n = costs.shape[1]
+    se = diff.std(axis=1, ddof=1) / np.sqrt(n) if n > 1 else np.zeros(len(costs))
+    within = diff.mean(axis=1) <= se
+    within[best] = True
+    return max(np.flatnonzero(within), key=lambda k: weights[k])
+
+
+def _fit_harmonic_scan(label, arcs, truth, ctx, settings: dict, weights, rule: str) -> tuple:
+    """Fit a network row once per harmonic-penalty weight and keep the fit ``rule`` chooses
+    from the costs on its held-out arcs (:func:`choose_weight`). Every fit has the same seed,
+    so the same held-out arcs and starting network. Returns the kept estimator and
+    {"weights": [...], "held_out_cost": [...] (relative to no correction), "rule": rule,
+    "chosen": weight}."""
+    fitted, costs, per_arc = [], [], []
     for w in weights:
         est = fit(
             f"{label} (harmonic {w:g})", arcs, truth, ctx, **{**settings, "harmonic": w or None}
@@ -197,16 +242,18 @@ def _fit_harmonic_scan(label, arcs, truth, ctx, settings: dict, weights) -> tupl
             )
         fitted.append(est)
         costs.append(float(est.diagnostics_["relative_cost"]))
-    k = int(np.argmin(costs))
+        per_arc.append(est.checked_arc_costs_.fitted)
+    k = choose_weight(weights, per_arc, rule)
     ctx.say(
-        f"{label}: harmonic weight {weights[k]:g} kept (held-out cost relative to no "
-        "correction: "
+        f"{label}: harmonic weight {weights[k]:g} kept by the {rule} rule (held-out cost "
+        "relative to no correction: "
         + ", ".join(f"{w:g} {c:.4f}" for w, c in zip(weights, costs, strict=True))
         + ")"
     )
     scan = {
         "weights": [float(w) for w in weights],
         "held_out_cost": [round(c, 6) for c in costs],
+        "rule": rule,
         "chosen": float(weights[k]),
     }
     return fitted[k], scan
@@ -277,7 +324,13 @@ class SwarmExperiment(Experiment):
             start = time.perf_counter()
             if model == "network" and config.harmonic_scan:  # check(): two weights or more
                 est, scans[kind] = _fit_harmonic_scan(
-                    label, arcs, truth, ctx, settings, config.harmonic_scan
+                    label,
+                    arcs,
+                    truth,
+                    ctx,
+                    settings,
+                    config.harmonic_scan,
+                    config.harmonic_scan_rule,
                 )
             else:
                 est = fit(label, arcs, truth, ctx, **settings)
@@ -501,6 +554,11 @@ def swarm_readme(report: dict) -> list[str]:
             ", harmonic penalty weight chosen per fit from "
             + ", ".join(f"{w:g}" for w in cfg["harmonic_scan"])
             + " by the cost on its held-out arcs"
+            + (
+                " (the strongest within one standard error of the lowest)"
+                if cfg.get("harmonic_scan_rule", "lowest") == "one-standard-error"
+                else " (the lowest)"
+            )
             if cfg.get("harmonic_scan")
             else f", harmonic penalty {cfg['harmonic']:g}"
             if cfg.get("harmonic")

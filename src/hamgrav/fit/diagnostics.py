@@ -4,6 +4,8 @@
   there are none) divided by the cost of no correction (learnable parameters zero, the known
   part alone) on the same arcs: 1 means the fit explains nothing the known part did not.
 - ``improved``: ``relative_cost`` below ``IMPROVEMENT_THRESHOLD``.
+- ``arc_costs``: the per-arc costs behind ``relative_cost`` (:class:`ArcCosts`); the estimator
+  keeps them as ``checked_arc_costs_``, out of its reported diagnostics.
 - ``constrained_parameters``: the numerical rank of A^T A on the training arcs at the fitted
   parameters (eigenvalues above 1e-12 of the largest, i.e. singular values of A above 1e-6 of
   the largest): how many parameter directions the arcs determine.
@@ -11,15 +13,25 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..core.problem import ArcProblem
 
-__all__ = ["IMPROVEMENT_THRESHOLD", "constrained_parameters", "diagnose"]
+__all__ = ["IMPROVEMENT_THRESHOLD", "ArcCosts", "constrained_parameters", "diagnose"]
 
 #: A fit "clearly improves" over no correction when its held-out cost is below this fraction
 #: of the no-correction cost.
 IMPROVEMENT_THRESHOLD = 0.9
+
+
+class ArcCosts(NamedTuple):
+    """Per-arc costs r.r / 2 (canonical) on the arcs a fit was checked on: ``fitted`` at the
+    fitted parameters, ``none`` with no correction; ``relative_cost`` is their sums' ratio."""
+
+    fitted: np.ndarray
+    none: np.ndarray
 
 
 def diagnose(
@@ -38,14 +50,16 @@ def diagnose(
     ``params`` when the solver has it (else it is computed)."""
     held_out = validation is not None and len(validation) > 0
     arcs = validation if held_out else train
-    fitted = problem.cost(params, arcs)
-    none = problem.cost(no_correction, arcs)
+    fitted_arcs = problem.arc_costs(params, arcs)
+    none_arcs = problem.arc_costs(no_correction, arcs)
+    fitted, none = float(fitted_arcs.sum()), float(none_arcs.sum())
     relative = fitted / none if none > 0 else float("nan")
     out = {
         "checked_on": "validation arcs" if held_out else "training arcs",
         "relative_cost": float(relative),
         "improved": bool(relative < IMPROVEMENT_THRESHOLD),
         "n_params": int(problem.n_params),
+        "arc_costs": ArcCosts(fitted_arcs, none_arcs),
     }
     if rank:
         out["constrained_parameters"] = constrained_parameters(problem, params, train, normal)

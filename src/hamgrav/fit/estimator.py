@@ -4,7 +4,8 @@
 given; ``fit`` builds the model (known part + learnable term + per-trajectory terms), decides
 the validation split, the solver, the initial point (scratch or warm start) and the
 per-trajectory parameters, runs the solver, and sets the learned attributes ``model_``,
-``params_``, ``result_``, ``train_``, ``validation_``, ``diagnostics_`` (see
+``params_``, ``result_``, ``train_``, ``validation_``, ``diagnostics_`` and
+``checked_arc_costs_`` (the per-arc costs behind ``diagnostics_["relative_cost"]``; see
 :mod:`hamgrav.fit.diagnostics`) and ``fitted_`` (a :class:`~hamgrav.fit.fitted.FittedModel`).
 Calling ``fit`` again overwrites them. A fit that does not clearly improve on no correction
 ends with the outcome "no improvement".
@@ -503,6 +504,7 @@ class GravityEstimator:
                 rank=not ensemble,
                 normal=result.data_normal,
             )
+            self.checked_arc_costs_ = self.diagnostics_.pop("arc_costs")
             if ensemble:
                 ranks = [m.pop("constrained_parameters") for m in members]
                 self.diagnostics_["constrained_parameters"] = int(min(ranks))
@@ -538,6 +540,7 @@ class GravityEstimator:
                 )
         else:
             self.diagnostics_ = {"n_params": 0, "improved": False, "constrained_parameters": 0}
+            self.checked_arc_costs_ = None
         self.model_ = model
         self.params_ = result.params
         self.result_ = result

@@ -73,7 +73,7 @@ class SwarmConfig:
         area_to_mass_m2_kg: (low, high) A/m range [m^2/kg]; the particles' values are
             log-uniform and stratified (one per equal log-interval, shuffled), so they span
             nearly the whole range. The default is the strength at which the paper's swarm
-            statements hold (see results/swarm-bennu).
+            statements come closest to holding together (see results/swarm-bennu).
         speed_escape_fraction: (low, high) ejection speed relative to the surface, as a
             fraction of the local escape speed sqrt(2 GM / r) (uniform).
         cone_deg: half-angle [deg] of the cone about the face normal that holds the ejection
