@@ -515,8 +515,7 @@ def test_swarm_tiny_harmonic_scan(tmp_path):
     out = tmp_path / "swarm"
     args = [
         "experiment", "swarm", *TINY_SWARM, "--arcs", "6", "--sh-degrees", "2",
-        "--lm-iterations", "3", "--harmonic-scan", "0,10,1e3", "--harmonic-scan-rule", "lowest",
-        "-o", str(out),
+        "--lm-iterations", "3", "--harmonic-scan", "0,10,1e3", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -525,17 +524,19 @@ def test_swarm_tiny_harmonic_scan(tmp_path):
     rep = data["repetitions"][0]
     assert set(rep["harmonic_scan"]) == {"joint", "gravity-only"}
     for kind, scan in rep["harmonic_scan"].items():
-        assert scan["weights"] == [0.0, 10.0, 1000.0] and scan["rule"] == "lowest"
+        assert scan["weights"] == [0.0, 10.0, 1000.0] and scan["rule"] == "one-standard-error"
         costs = scan["held_out_cost"]
-        # the weight changes the fit, and the kept fit is the one of lowest held-out cost
+        # the weight changes the fit; the default rule keeps the lowest held-out cost's weight
+        # or a stronger one, and the kept fit is the one of the chosen weight
         assert len(set(costs)) == 3
-        k = costs.index(min(costs))
-        assert scan["chosen"] == scan["weights"][k]
+        assert scan["chosen"] >= scan["weights"][costs.index(min(costs))]
+        k = scan["weights"].index(scan["chosen"])
         kept = rep["fits"][kind]["network"]
         assert kept["diagnostics"]["relative_cost"] == pytest.approx(costs[k], rel=1e-5)
         assert kept.get("harmonic", {}).get("weight", 0.0) == scan["chosen"]
     readme = (out / "README.md").read_text()
     assert "harmonic penalty weight chosen per fit from 0, 10, 1000" in readme
+    assert "(the strongest within one standard error of the lowest)" in readme
     assert "- gravity-only network: " in readme
 
 
@@ -554,6 +555,14 @@ def test_choose_weight_rules():
     assert choose_weight(weights, apart, "one-standard-error") == 2
     # a single held-out arc has no standard error: the lowest is kept
     assert choose_weight(weights, close[:, :1], "one-standard-error") == int(np.argmin(close[:, 0]))
+    # a fit whose cost is not finite is never kept, by either rule
+    failed = close.copy()
+    failed[1, 3] = np.nan
+    assert choose_weight(weights, failed, "one-standard-error") == 2
+    failed[2, 0] = np.inf
+    assert choose_weight(weights, failed, "lowest") == 0
+    with pytest.raises(ValueError, match="finite"):
+        choose_weight(weights, np.full((3, 4), np.nan), "lowest")
     with pytest.raises(ValueError, match="unknown rule"):
         choose_weight(weights, close, "median")
 

@@ -228,8 +228,8 @@ class ArcProblem:
         return 0.5 * float(np.sum(r * r))
 
     def arc_costs(self, theta, arc_indices=None) -> np.ndarray:
-        """r.r / 2 of each selected arc, shape (n_arcs,) (canonical; :meth:`cost` is their
-        sum)."""
+        """r.r / 2 of each selected arc in the order given, shape (n_arcs,): canonical units,
+        dimensionless when whitened (:meth:`cost` is their sum)."""
         r = self.residuals(theta, arc_indices)
         return 0.5 * np.sum(r * r, axis=(1, 2))
 

@@ -129,9 +129,9 @@ class SwarmExperimentConfig(ExperimentConfig):
     harmonic_scan: tuple[float, ...] = option(
         (1e-5, 1e-4, 1e-3, 1e-2, 1e-1),
         "Weights of the harmonic penalty to scan for each 'network' fit (joint and "
-        "gravity-only, each on its own): every weight is fitted and the fit with the lowest "
-        'cost on its held-out arcs is kept (no truth). Empty (""): the single weight '
-        "--harmonic.",
+        "gravity-only, each on its own): every weight is fitted and the fit that "
+        "--harmonic-scan-rule chooses from the costs on its held-out arcs is kept (no truth). "
+        'Empty (""): no scan, the single weight --harmonic (which a scan replaces).',
         at_least=0,
     )
     harmonic_scan_rule: str = option(
@@ -205,13 +205,18 @@ SCAN_RULES = ("one-standard-error", "lowest")
 
 def choose_weight(weights, arc_costs, rule: str) -> int:
     """Index of the weight ``rule`` keeps, given each fit's costs on the same held-out arcs
-    (``arc_costs``: one row per weight, one column per arc, any common unit).
+    (``arc_costs``: one row per weight, one column per arc, in any common unit; absolute
+    costs, so arcs with larger residuals weigh more, as in the total cost). A fit whose total
+    is not finite is never kept.
 
     ``lowest``: the fit of lowest total cost. ``one-standard-error`` (the one-standard-error
     rule of cross-validation): the largest weight whose mean cost over the arcs exceeds the
     lowest fit's by at most one standard error of the paired per-arc differences."""
     costs = np.asarray(arc_costs, dtype=float)
-    best = int(np.argmin(costs.sum(axis=1)))
+    totals = costs.sum(axis=1)
+    if not np.isfinite(totals).any():
+        raise ValueError("no fit of the scan has a finite held-out cost")
+    best = int(np.argmin(np.where(np.isfinite(totals), totals, np.inf)))  # a failed fit: never
     if rule == "lowest":
         return best
     if rule != "one-standard-error":

@@ -27,8 +27,10 @@ IMPROVEMENT_THRESHOLD = 0.9
 
 
 class ArcCosts(NamedTuple):
-    """Per-arc costs r.r / 2 (canonical) on the arcs a fit was checked on: ``fitted`` at the
-    fitted parameters, ``none`` with no correction; ``relative_cost`` is their sums' ratio."""
+    """Per-arc costs r.r / 2 (canonical units; dimensionless for a whitened fit) on the arcs
+    a fit was checked on, in the order of its validation indices (its training indices when
+    none are held out): ``fitted`` at the fitted parameters, ``none`` with no correction;
+    ``relative_cost`` is their sums' ratio."""
 
     fitted: np.ndarray
     none: np.ndarray
