@@ -534,7 +534,12 @@ def test_swarm_tiny_harmonic_scan(tmp_path):
         kept = rep["fits"][kind]["network"]
         assert kept["diagnostics"]["relative_cost"] == pytest.approx(costs[k], rel=1e-5)
         assert kept.get("harmonic", {}).get("weight", 0.0) == scan["chosen"]
+        # every scanned fit's field error is recorded; the kept row's is the chosen weight's
+        assert len(scan["field_error"]) == 3
+        assert scan["field_error"][k] == rep["field_error"][kind]["network"]
     readme = (out / "README.md").read_text()
+    best = min(e["h30m"] for e in rep["harmonic_scan"]["gravity-only"]["field_error"])
+    assert f"best scanned {best:.3f}" in readme
     assert "harmonic penalty weight chosen per fit from 0, 10, 1000" in readme
     assert "(the strongest within one standard error of the lowest)" in readme
     assert "- gravity-only network: " in readme
