@@ -12,6 +12,7 @@ no data at all.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -56,6 +57,11 @@ class Body:
         origin_m: position [m], in the mesh's own frame, of this body's frame origin.
         rotation: the body's rotation model in the ICRF (pole, prime meridian; the spin rate
             is ``spin_period_s``'s), when the catalogue entry has a ``rotation`` object.
+        naif_id: the body's NAIF ID (e.g. 2025143 for Itokawa) when known: SPICE kernels and
+            OEM CENTER_NAME may name the body by it.
+        source: where the body came from, plain data: ``{"kind": "catalogue" | "files" |
+            "synthetic", ...}`` with the catalogue folder, the body TOML or shape file, and
+            the shape's units (recorded in arcs and model files with :attr:`mesh_sha256`).
     """
 
     name: str
@@ -66,6 +72,19 @@ class Body:
     data_files: dict[str, Path] = field(default_factory=dict)
     origin_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rotation: RotationModel | None = None
+    naif_id: int | None = None
+    source: dict = field(default_factory=dict)
+
+    @cached_property
+    def mesh_sha256(self) -> str:
+        """SHA-256 (hex) of the mesh [m] in its own frame: vertices as float64 and faces as
+        int64, with their shapes. Equal digests: the same shape, whatever file it came from."""
+        h = hashlib.sha256()
+        for a, kind in ((self.mesh_m.vertices, np.float64), (self.mesh_m.faces, np.int64)):
+            a = np.ascontiguousarray(a, dtype=kind)
+            h.update(repr(a.shape).encode())
+            h.update(a.tobytes())
+        return h.hexdigest()
 
     @cached_property
     def units(self) -> CanonicalUnits:
@@ -286,6 +305,12 @@ def load_body(
         description=str(entry.get("description", "")),
         data_files={k: body_folder / v for k, v in files.items()},
         rotation=rotation,
+        source={
+            "kind": "catalogue",
+            "folder": str(folder.resolve()),
+            "mesh_file": mesh_file,
+            "units": "m",
+        },
     )
 
 
@@ -353,6 +378,17 @@ def contact_binary(
             f"synthetic contact binary, length {length_m:g} m, head ratio {head_ratio:g}, "
             f"density {density_kg_m3:g} kg/m^3, spin period {spin_period_s:g} s"
         ),
+        source={
+            "kind": "synthetic",
+            "generator": "contact_binary",
+            "parameters": {
+                "length_m": length_m,
+                "head_ratio": head_ratio,
+                "density_kg_m3": density_kg_m3,
+                "spin_period_s": spin_period_s,
+                "subdivisions": subdivisions,
+            },
+        },
     )
 
 
