@@ -85,6 +85,7 @@ def test_old_model_files_recording_other_arcs_or_body_are_refused(files, tmp_pat
     heavy = tmp_path / "heavy.h5"
     heavy.write_bytes(model.read_bytes())
     with old_hdf5(heavy) as f:
+        del f["body"]  # as older hamgrav wrote it: no record of the body
         f.attrs["gm_m3_s2"] = 1e9
     _error(runner.invoke(app, ["evaluate", str(heavy)]), "gm_m3_s2", "another body model")
     _error(
@@ -222,7 +223,10 @@ def test_evaluate_from_another_folder_uses_the_fits_arcs(files, small_arcs, tmp_
         runner.invoke(app, ["evaluate", str(fit_dir / "m.h5"), "--arcs", "arcs.h5"]),
         "hold another truth than the one model",
     )
-    save_arcs(replace(small_arcs, body_origin_m=(1.0, 0.0, 0.0)), other_dir / "shifted.h5")
+    shifted = replace(small_arcs.body, origin_m=(1.0, 0.0, 0.0))
+    save_arcs(
+        replace(small_arcs, body_origin_m=shifted.origin_m, body=shifted), other_dir / "shifted.h5"
+    )
     _error(
         runner.invoke(app, ["evaluate", str(fit_dir / "m.h5"), "--arcs", "shifted.h5"]),
         "in a frame with origin (1.0, 0.0, 0.0) m",

@@ -253,6 +253,36 @@ def _command_line(words: list[str], options: dict) -> str:
     return " ".join(parts)
 
 
+#: The --body option of commands that read arcs or a model: they record their body.
+BodyOption = Annotated[
+    str | None,
+    typer.Option(
+        "--body",
+        help="The body: a catalogue name or a body TOML (default: the one the arcs or model "
+        "file records; older files, which record only a name, are looked up by it).",
+    ),
+]
+
+
+def _body_for(spec: str | None, arcs=None, fitted=None):
+    """The body of a command on ``arcs`` (or a model ``fitted``): ``--body`` when given
+    (checked against them), else the one they record."""
+    from .fit.estimator import body_for_arcs, body_for_model, body_with_arcs
+
+    if spec is None:
+        return body_for_arcs(arcs) if arcs is not None else body_for_model(fitted)
+    body = load_body(spec)
+    if arcs is not None:
+        return body_with_arcs(body, arcs, f"--body {spec}")
+    for name, unit in (("gm_m3_s2", "m^3/s^2"), ("spin_period_s", "s")):
+        if not math.isclose(getattr(body, name), getattr(fitted, name), rel_tol=1e-12):
+            raise InputError(
+                f"--body {spec} has {name} {getattr(body, name)!r} {unit}, the model "
+                f"{getattr(fitted, name)!r} {unit}; give the body the model was fitted for"
+            )
+    return replace(body, origin_m=tuple(float(v) for v in fitted.body_origin_m))
+
+
 @_command(app)
 def bodies() -> None:
     """List the bodies hamgrav can load (synthetic ones need no data folder)."""
@@ -528,13 +558,14 @@ def fit(
         bool,
         typer.Option(help="Exit with status 3 when the fit does not clearly beat no correction."),
     ] = False,
+    body: BodyOption = None,
 ) -> None:
     """Fit a gravity correction to tracking arcs and write the model file.
 
     The model file is written in every case, with the fit's outcome and diagnostics. An
     interrupted fit keeps a checkpoint beside it (OUTPUT.checkpoint.npz): --resume continues
     it, and a fresh fit refuses to start over it."""
-    from .fit.estimator import GravityEstimator, body_for_arcs, has_noise, truth_shell_metric
+    from .fit.estimator import GravityEstimator, has_noise, truth_shell_metric
     from .io.arcs import load_arcs
     from .io.models import (
         checkpoint_path_for,
@@ -581,7 +612,7 @@ def fit(
     _output(ckpt, "checkpoint")
 
     arcs = load_arcs(arcs_file)
-    body_obj = body_for_arcs(arcs)
+    body_obj = _body_for(body, arcs=arcs)
     if solver is not None:  # a solver by name replaces the configuration's
         settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
         if solver == "adam":  # the harmonic penalty is an LM objective term
@@ -797,6 +828,7 @@ def evaluate(
             "truth, how well it is calibrated).",
         ),
     ] = False,
+    body: BodyOption = None,
 ) -> None:
     """Relative field errors of a fitted model against the truth recorded with the arcs.
 
@@ -808,7 +840,6 @@ def evaluate(
     (see hamgrav.fit.covariance)."""
     from .bodies.evaluation import evaluation_sets, set_label
     from .core.fields import field_errors
-    from .fit.estimator import body_for_arcs
     from .io.models import load_model
 
     # shells inside R_B cut through the body, where the truth's mascons are singular
@@ -816,7 +847,7 @@ def evaluate(
     altitudes = _floats(altitude, "--altitude (metres above the surface)", 0.0)
     fitted = load_model(model_file)
     arcs = _truth_arcs(fitted, model_file, arcs_file)
-    body = body_for_arcs(arcs)
+    body = _body_for(body, arcs=arcs)
     sets = evaluation_sets(body, radii, altitudes)
     report = None
     if uncertainty:
@@ -988,6 +1019,7 @@ def export_command(
     errors: Annotated[
         bool, typer.Option(help="Write formal errors of SH models (needs the fit's arcs).")
     ] = True,
+    body: BodyOption = None,
 ) -> None:
     """Write a model for other tools: SH coefficients (ICGEM, SHADR) or a network (JSON).
 
@@ -995,7 +1027,6 @@ def export_command(
     a shape prior, the learned correction) as fully normalised coefficients with GM [m^3/s^2]
     and the reference radius [m]; a network is projected on the sphere at the reference
     radius (the Brillouin radius). JSON holds a network's layers with the known part."""
-    from .fit.estimator import body_in_frame
     from .io.models import load_model
 
     fmt = fmt.lower()
@@ -1017,9 +1048,7 @@ def export_command(
     from .io.shformats import sh_export, write_icgem, write_shadr
 
     is_sh = isinstance(fitted.model.learnable, SphericalHarmonics)
-    reference = (
-        None if is_sh else body_in_frame(fitted.body_name, fitted.body_origin_m).brillouin_radius
-    )
+    reference = None if is_sh else _body_for(body, fitted=fitted).brillouin_radius
     covariance, note = None, "no formal errors (--no-errors)"
     if errors and is_sh:
         covariance, note = _formal_covariance(fitted, arcs_file)
@@ -1095,11 +1124,11 @@ def select(
     output: Annotated[
         Path | None, typer.Option("-o", "--output", help="Write the picks as JSON.")
     ] = None,
+    body: BodyOption = None,
 ) -> None:
     """D-optimal choice of the next orbits from a candidate pool, from predicted sensitivities
     at the current model (no measurements, no truth)."""
     from .fit.design import select_orbits
-    from .fit.estimator import body_in_frame
     from .io.files import atomic_path
     from .io.models import load_model
     from .sim.campaign import load_campaign
@@ -1109,17 +1138,19 @@ def select(
     _output(output, MODEL=model_file, **{"--pool": pool})
     fitted = load_model(model_file)
     config = load_campaign(pool)
-    if config.body != fitted.body_name:
+    body_obj = _body_for(body, fitted=fitted)
+    if config.body != fitted.body_name and (
+        load_body(config.body).mesh_sha256 != body_obj.mesh_sha256
+    ):
         raise InputError(
             f"the pool {pool} is for body {config.body!r}, the model {model_file} for "
-            f"{fitted.body_name!r}"
+            f"{fitted.body_name!r} (another shape)"
         )
     if picks > len(config.families):
         raise InputError(
             f"--picks {picks} is more than the {len(config.families)} candidate orbits of "
             f"the pool {pool}"
         )
-    body_obj = body_in_frame(fitted.body_name, fitted.body_origin_m)
     with _progress() as progress:
         progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
         rows = select_orbits(

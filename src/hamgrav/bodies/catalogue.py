@@ -12,7 +12,6 @@ no data at all.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from ..core.arcs import BodyRecord, mesh_digest
 from ..errors import BodyDataError, InputError
 from ..units import CanonicalUnits
 from .rotation import J2000_TDB, RotationModel
@@ -77,14 +77,64 @@ class Body:
 
     @cached_property
     def mesh_sha256(self) -> str:
-        """SHA-256 (hex) of the mesh [m] in its own frame: vertices as float64 and faces as
-        int64, with their shapes. Equal digests: the same shape, whatever file it came from."""
-        h = hashlib.sha256()
-        for a, kind in ((self.mesh_m.vertices, np.float64), (self.mesh_m.faces, np.int64)):
-            a = np.ascontiguousarray(a, dtype=kind)
-            h.update(repr(a.shape).encode())
-            h.update(a.tobytes())
-        return h.hexdigest()
+        """SHA-256 (hex) of the mesh [m] in its own frame (:func:`~hamgrav.core.arcs.mesh_digest`):
+        equal digests, the same shape, whatever file it came from."""
+        return mesh_digest(self.mesh_m.vertices, self.mesh_m.faces)
+
+    def record(self) -> BodyRecord:
+        """This body as plain data, to record in arcs and model files."""
+        rotation = None
+        if self.rotation is not None:
+            r = self.rotation
+            rotation = {
+                "pole_ra_deg": r.pole_ra_deg,
+                "pole_dec_deg": r.pole_dec_deg,
+                "prime_meridian_deg": r.prime_meridian_deg,
+                "epoch_tdb": r.epoch,
+            }
+        return BodyRecord(
+            name=self.name,
+            gm_m3_s2=float(self.gm_m3_s2),
+            spin_period_s=float(self.spin_period_s),
+            origin_m=tuple(float(v) for v in self.origin_m),
+            vertices_m=np.asarray(self.mesh_m.vertices, dtype=float),
+            faces=np.asarray(self.mesh_m.faces, dtype=np.int64),
+            rotation=rotation,
+            naif_id=self.naif_id,
+            source=dict(self.source),
+            description=self.description,
+        )
+
+    @classmethod
+    def from_record(cls, record: BodyRecord) -> Body:
+        """The body a :class:`~hamgrav.core.arcs.BodyRecord` describes (its reference data
+        files, such as a catalogue body's mascons, are not part of the record)."""
+        rotation = None
+        if record.rotation is not None:
+            r = record.rotation
+            rotation = RotationModel(
+                float(r["pole_ra_deg"]),
+                float(r["pole_dec_deg"]),
+                float(r["prime_meridian_deg"]),
+                float(record.spin_period_s),
+                str(r.get("epoch_tdb", J2000_TDB)),
+            )
+        mesh = trimesh.Trimesh(
+            np.asarray(record.vertices_m, dtype=float),
+            np.asarray(record.faces, dtype=np.int64),
+            process=False,
+        )
+        return cls(
+            name=record.name,
+            gm_m3_s2=float(record.gm_m3_s2),
+            spin_period_s=float(record.spin_period_s),
+            mesh_m=mesh,
+            description=record.description,
+            origin_m=tuple(float(v) for v in record.origin_m),
+            rotation=rotation,
+            naif_id=record.naif_id,
+            source=dict(record.source),
+        )
 
     @cached_property
     def units(self) -> CanonicalUnits:

@@ -9,10 +9,59 @@ import numpy as np
 
 from .mascons import MasconSet
 
-__all__ = ["Arcs", "NO_TRUTH"]
+__all__ = ["Arcs", "BodyRecord", "NO_TRUTH", "mesh_digest"]
 
 #: The ``interior`` of arcs that carry no truth (tracking imported from files).
 NO_TRUTH = "none"
+
+
+def mesh_digest(vertices_m, faces) -> str:
+    """SHA-256 (hex) of a triangle mesh: vertices [m] as float64 and faces as int64, with
+    their shapes. Equal digests: the same shape, whatever file it came from."""
+    h = hashlib.sha256()
+    _hash_arrays(h, np.asarray(vertices_m, dtype=float), np.asarray(faces, dtype=np.int64))
+    return h.hexdigest()
+
+
+@dataclass(frozen=True, eq=False)
+class BodyRecord:
+    """The body a dataset or a model was made with, as plain data: enough to rebuild the
+    body (:meth:`hamgrav.bodies.catalogue.Body.from_record`) without looking anything up.
+
+    Attributes:
+        name: the body's name (free text; not looked up anywhere).
+        gm_m3_s2: gravitational parameter [m^3/s^2].
+        spin_period_s: sidereal spin period [s] about +z.
+        origin_m: (3,) the frame origin [m] in the mesh's own frame.
+        vertices_m: (n, 3) mesh vertices [m] in the mesh's own frame.
+        faces: (k, 3) vertex indices of the outward-wound triangles.
+        rotation: the rotation model in the ICRF as plain data (``pole_ra_deg``,
+            ``pole_dec_deg``, ``prime_meridian_deg``, ``epoch_tdb``), or None.
+        naif_id: the body's NAIF ID, or None.
+        source: where the body came from (see ``Body.source``).
+        description: free text.
+    """
+
+    name: str
+    gm_m3_s2: float
+    spin_period_s: float
+    origin_m: tuple[float, float, float]
+    vertices_m: np.ndarray
+    faces: np.ndarray
+    rotation: dict | None = None
+    naif_id: int | None = None
+    source: dict = field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        v, f = np.shape(self.vertices_m), np.shape(self.faces)
+        if len(v) != 2 or v[1] != 3 or len(f) != 2 or f[1] != 3:
+            raise ValueError(f"a body record needs vertices (n, 3) and faces (k, 3), got {v}, {f}")
+
+    @property
+    def mesh_sha256(self) -> str:
+        """:func:`mesh_digest` of the recorded mesh."""
+        return mesh_digest(self.vertices_m, self.faces)
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,6 +83,8 @@ class Arcs:
             ``interior_parameters`` its settings (empty and :data:`NO_TRUTH` for imported
             tracking, see :attr:`has_truth`).
         seed: generator seed of the campaign; config: the campaign description.
+        body: the body the arcs were made with (mesh, constants, provenance), or None in
+            files written before hamgrav recorded it.
     """
 
     times: np.ndarray
@@ -53,8 +104,24 @@ class Arcs:
     interior_parameters: dict = field(default_factory=dict)
     seed: int = 0
     config: dict = field(default_factory=dict)
+    body: BodyRecord | None = None
 
     def __post_init__(self) -> None:
+        if self.body is not None and (
+            float(self.body.gm_m3_s2) != float(self.gm_m3_s2)
+            or float(self.body.spin_period_s) != float(self.spin_period_s)
+        ):
+            raise ValueError(
+                f"the arcs' GM {self.gm_m3_s2} m^3/s^2 and spin period {self.spin_period_s} s "
+                f"differ from their body's ({self.body.gm_m3_s2}, {self.body.spin_period_s})"
+            )
+        if self.body is not None and tuple(map(float, self.body.origin_m)) != tuple(
+            map(float, self.body_origin_m)
+        ):
+            raise ValueError(
+                f"the arcs' frame origin {self.body_origin_m} m differs from their body's "
+                f"{self.body.origin_m}"
+            )
         n, m = np.shape(self.times)
         if np.shape(self.states) != (n, m, 6) or np.shape(self.true_states) != (n, m, 6):
             raise ValueError(

@@ -42,7 +42,9 @@ __all__ = [
     "GravityEstimator",
     "TERMS",
     "body_for_arcs",
+    "body_for_model",
     "body_in_frame",
+    "body_with_arcs",
     "fitted_harmonic_penalty",
     "noise_sigmas",
     "noise_whitening",
@@ -131,14 +133,52 @@ def preset(name: str, **overrides) -> dict:
 
 
 def body_in_frame(body_name: str, origin_m, folder=None) -> Body:
-    """A catalogue or synthetic body with its frame origin at ``origin_m`` [m, mesh frame]."""
+    """A catalogue or synthetic body with its frame origin at ``origin_m`` [m, mesh frame]:
+    for files written before hamgrav recorded their body (see :func:`body_for_arcs`)."""
     body = load_body(body_name, folder=folder)
     return replace(body, origin_m=tuple(float(v) for v in origin_m))
 
 
 def body_for_arcs(arcs: Arcs, folder=None) -> Body:
-    """The arcs' body, in the arcs' frame (the truth's centre of mass)."""
+    """The arcs' body, in the arcs' frame: rebuilt from the body the arcs record (mesh,
+    constants, provenance); only arcs written before hamgrav recorded it are looked up by
+    name (catalogue or synthetic, in ``folder``)."""
+    if arcs.body is not None:
+        return Body.from_record(arcs.body)
     return body_in_frame(arcs.body_name, arcs.body_origin_m, folder)
+
+
+def body_for_model(fitted: FittedModel, folder=None) -> Body:
+    """The body a model was fitted for, in the model's frame: rebuilt from the model file's
+    record; only models written before hamgrav recorded it are looked up by name."""
+    if fitted.body is not None:
+        return Body.from_record(fitted.body)
+    return body_in_frame(fitted.body_name, fitted.body_origin_m, folder)
+
+
+def body_with_arcs(body: Body, arcs: Arcs, what: str = "the body") -> Body:
+    """``body`` (given by the user: a catalogue name, files, or a :class:`Body`) in the arcs'
+    frame, checked against them: its GM and spin period must be the arcs' (they fix the
+    canonical units), and a shape other than the one the arcs record is warned about.
+    ``what`` names the body in messages (e.g. "--body didymos.toml")."""
+    for name, mine, theirs, unit in (
+        ("GM", body.gm_m3_s2, arcs.gm_m3_s2, "m^3/s^2"),
+        ("spin period", body.spin_period_s, arcs.spin_period_s, "s"),
+    ):
+        if not math.isclose(float(mine), float(theirs), rel_tol=1e-12):
+            raise InputError(
+                f"{what} has {name} {mine} {unit} but the arcs were made with {theirs} {unit}; "
+                "use the body the arcs were made with (or leave the body out: the arcs "
+                "record theirs)"
+            )
+    if arcs.body is not None and arcs.body.mesh_sha256 != body.mesh_sha256:
+        warnings.warn(
+            f"{what} has another shape than the arcs record (mesh digest "
+            f"{body.mesh_sha256[:12]} against {arcs.body.mesh_sha256[:12]}); using {what}",
+            HamgravWarning,
+            stacklevel=2,
+        )
+    return replace(body, origin_m=tuple(float(v) for v in arcs.body_origin_m))
 
 
 def noise_sigmas(arcs: Arcs) -> np.ndarray:
@@ -276,7 +316,9 @@ class GravityEstimator:
         harmonic: weight w of the harmonic penalty of a network fit by LM (None: off):
             0.5 w sum (lap N)^2 over 1500 seeded points outside the body out to the farthest
             tracked sample, canonical (see :mod:`hamgrav.fit.harmonic`).
-        body: the body in the arcs' frame (default: loaded from the catalogue by name).
+        body: the :class:`~hamgrav.bodies.catalogue.Body` of the arcs (a catalogue body, one
+            from files, or any other), moved into the arcs' frame and checked against them
+            (:func:`body_with_arcs`); default: the body the arcs record.
         mapper: map function for independent work (Kaula scan); builtin ``map`` by default.
     """
 
@@ -336,7 +378,7 @@ class GravityEstimator:
         """The model to fit to ``arcs`` and a plain-data description of its known part."""
         if self.term not in TERMS:
             raise InputError(f"term must be one of {', '.join(TERMS)}, got {self.term!r}")
-        body = self.body if self.body is not None else body_for_arcs(arcs)
+        body = self.body_of(arcs)
         if self.prior is None:
             known, prior_info = (PointMass(),), {"kind": "point-mass"}
         elif self.prior == "shape":
@@ -352,6 +394,14 @@ class GravityEstimator:
         elif self.term == "sh":
             learnable = SphericalHarmonics(int(self.degree), body.brillouin_radius)
         return Model(known, learnable, tuple(self.per_trajectory)), prior_info
+
+    def body_of(self, arcs: Arcs) -> Body:
+        """The body of a fit of ``arcs``, in their frame: the estimator's ``body`` (checked
+        against the arcs by :func:`body_with_arcs`) or, without one, the body the arcs
+        record (:func:`body_for_arcs`)."""
+        if self.body is None:
+            return body_for_arcs(arcs)
+        return body_with_arcs(self.body, arcs, f"the estimator's body {self.body.name!r}")
 
     @property
     def solver_name(self) -> str:
@@ -575,6 +625,7 @@ class GravityEstimator:
             prior=prior_info,
             solver=solver_info,
             history={k: [float(x) for x in v] for k, v in result.history.items()},
+            body=self.body_of(arcs).record(),
             training={
                 "arcs_sha256": arcs.digest(),
                 # arcs without a truth (imported tracking) record none: any simulated arcs of
@@ -625,7 +676,7 @@ class GravityEstimator:
             return None
         if self.solver_name == "adam":
             raise InputError("harmonic (the Laplacian penalty) needs the LM solver, not Adam")
-        body = self.body if self.body is not None else body_for_arcs(arcs)
+        body = self.body_of(arcs)
         reach = float(np.max(np.linalg.norm(arcs.states[..., :3], axis=-1)))
         points = exterior_points(body, reach, DEFAULT_COLLOCATION_POINTS, seed=self.seed)
         return HarmonicPenalty(model, points, float(self.harmonic))

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.arcs import BodyRecord
 from ..core.model import Model
 
 __all__ = ["FittedModel"]
@@ -32,6 +33,8 @@ class FittedModel:
             truth anywhere: ``arcs_sha256`` and ``truth_sha256`` (:meth:`Arcs.digest`,
             :meth:`Arcs.truth_digest`) and, when fitted from a file, ``arcs_file`` (absolute).
             Empty for files written before hamgrav recorded it.
+        body: the body the model was fitted for (mesh, constants, provenance, in the
+            model's frame), or None in files written before hamgrav recorded it.
     """
 
     model: Model
@@ -46,6 +49,7 @@ class FittedModel:
     history: dict = field(default_factory=dict)
     stages: list = field(default_factory=list)
     training: dict = field(default_factory=dict)
+    body: BodyRecord | None = None
 
     @property
     def learnable_params(self) -> np.ndarray:

@@ -11,6 +11,7 @@ Layout of an arcs file (all numeric data canonical unless the name says otherwis
     /trajectory      (n_arcs,)
     /trajectory_info/<name>           per-trajectory arrays
     /truth/positions (n, 3), /truth/masses (n,)
+    /body            the body the arcs were made with (see :mod:`hamgrav.io.body_record`)
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
 from ..errors import DatasetError
+from .body_record import read_body_record, write_body_record
 from .files import atomic_path
 from .hdf5 import (
     READ_ERRORS,
@@ -90,6 +92,8 @@ def _write(arcs: Arcs, tmp: Path) -> None:
         truth = f.create_group("truth")
         write_array(truth, "positions", arcs.truth.positions)
         write_array(truth, "masses", arcs.truth.masses)
+        if arcs.body is not None:
+            write_body_record(f, arcs.body)
 
 
 def _attr(f, name: str):
@@ -230,6 +234,22 @@ def _read(f, path: Path) -> Arcs:
             f"dataset 'truth/masses' holds {int(np.sum(masses < 0))} negative masses "
             f"(the smallest {float(masses.min()):.3g}); truth mascons are >= 0"
         )
+    body = read_body_record(f, DatasetError)
+    if body is not None:
+        if (body.gm_m3_s2, body.spin_period_s) != (
+            metadata["gm_m3_s2"],
+            metadata["spin_period_s"],
+        ):
+            raise DatasetError(
+                f"the arcs' GM {metadata['gm_m3_s2']} m^3/s^2 and spin period "
+                f"{metadata['spin_period_s']} s differ from their body's ({body.gm_m3_s2}, "
+                f"{body.spin_period_s})"
+            )
+        if tuple(body.origin_m) != origin:
+            raise DatasetError(
+                f"the arcs' frame origin {list(origin)} m differs from their body's "
+                f"{list(body.origin_m)}"
+            )
     return Arcs(
         times=times,
         states=states,
@@ -239,6 +259,7 @@ def _read(f, path: Path) -> Arcs:
         trajectory_info=info,
         body_origin_m=origin,
         truth=MasconSet(positions, masses),
+        body=body,
         **metadata,
     )
 

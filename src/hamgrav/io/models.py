@@ -14,6 +14,7 @@ period / 2 pi, unless the name says otherwise)::
     /history       attrs: names (JSON list, the order of the entries),
                           json (JSON object of the entries that are not arrays of numbers)
     /history/<name>      float array for each numeric entry
+    /body          the body the model was fitted for (see :mod:`hamgrav.io.body_record`)
 
 The file's checksum is in its HDF5 user block and datasets carry fletcher32 checksums (see
 :mod:`hamgrav.io.hdf5`). ``training`` is absent in files written before hamgrav 0.2.1.
@@ -43,6 +44,7 @@ from ..core.model import Model
 from ..errors import DatasetError, HamgravWarning
 from ..fit.fitted import FittedModel
 from . import hdf5
+from .body_record import read_body_record, write_body_record
 from .files import atomic_path
 
 __all__ = [
@@ -156,6 +158,8 @@ def save_model(fitted: FittedModel, path: str | os.PathLike) -> Path:
             f.attrs.update(attrs)
             hdf5.write_array(f, "params", params)
             _write_history(f.create_group("history"), fitted.history)
+            if fitted.body is not None:
+                write_body_record(f, fitted.body)
         hdf5.seal(tmp)
     return path
 
@@ -245,8 +249,18 @@ def _read_model(f: h5py.File, path: Path) -> FittedModel:
         history=_read_history(f["history"]),
         stages=stages,
         training=training,
+        body=read_body_record(f, ModelFileError),
         **dicts,
     )
+    body = fitted.body
+    if body is not None and (
+        (body.gm_m3_s2, body.spin_period_s) != (fitted.gm_m3_s2, fitted.spin_period_s)
+        or tuple(body.origin_m) != tuple(origin)
+    ):
+        raise ModelFileError(
+            "file inconsistent: the model's GM, spin period or frame origin differ from its "
+            f"recorded body's; {_FIX}"
+        )
     bad = ~np.isfinite(params)
     if bad.any():
         raise ModelFileError(

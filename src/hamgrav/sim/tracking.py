@@ -213,8 +213,9 @@ def simulated_arcs_fields(
     truth: Truth, sigma_r_m: float, velocity_noise_ratio: float, seed: int
 ) -> dict:
     """The :class:`Arcs` fields every simulator fills alike: the truth's body (name, GM
-    [m^3/s^2], spin period [s], frame origin [m]), the noise (sigma_r [m]; sigma_v [m/s] =
-    ``velocity_noise_ratio`` x omega x sigma_r), the truth's mascons and interior, the seed."""
+    [m^3/s^2], spin period [s], frame origin [m], and its record: mesh and provenance), the
+    noise (sigma_r [m]; sigma_v [m/s] = ``velocity_noise_ratio`` x omega x sigma_r), the
+    truth's mascons and interior, the seed."""
     body = truth.body
     return {
         "body_name": body.name,
@@ -227,6 +228,7 @@ def simulated_arcs_fields(
         "interior": truth.interior,
         "interior_parameters": dict(truth.parameters),
         "seed": seed,
+        "body": body.record(),
     }
 
 
