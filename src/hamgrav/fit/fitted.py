@@ -80,7 +80,8 @@ class FittedModel:
         zero for a point-mass known part); "correction" (or "learnable") is the learned term
         (zero for a model without one). The parts add up to the total. Note that
         :func:`hamgrav.core.model.evaluate_field`'s "known" includes the central term.
-        Per-trajectory terms (SRP) are never part of the field.
+        Per-trajectory terms (SRP) are never part of the field. The field is not finite at
+        the origin (nor at a mascon of the model).
         """
         return self._field(points_m, which)[0]
 
@@ -102,24 +103,28 @@ class FittedModel:
             return np.zeros(0), np.zeros((0, 3))
         units = self.units
         q = units.to_length(points)
+        with np.errstate(divide="ignore", invalid="ignore"):  # the origin: inf or NaN, no warning
+            v, a = self._canonical_field(q, which)
+        v, a = units.from_potential(v), units.from_acceleration(a)
+        return (v[0], a[0]) if single else (v, a)
+
+    def _canonical_field(self, q: np.ndarray, which: str) -> tuple[np.ndarray, np.ndarray]:
+        """Potential and acceleration [canonical] of part ``which`` at canonical points q."""
         if which in ("total", "central", "known"):
             r = np.linalg.norm(q, axis=1)
             v_central, a_central = 1.0 / r, -q / r[:, None] ** 3  # GM = 1 canonical
         if which == "total":
-            v, a = evaluate_field(self.model, self.params, q, "total")
-        elif which == "central":
-            v, a = v_central, a_central
-        elif which == "known":
+            return evaluate_field(self.model, self.params, q, "total")
+        if which == "central":
+            return v_central, a_central
+        if which == "known":
             # the numerics' known part holds the central term (a point mass, or the prior's
             # whole mass): take it out so that the parts add up to the total
             v, a = evaluate_field(self.model, self.params, q, "known")
-            v, a = v - v_central, a - a_central
-        elif self.model.learnable is None:
-            v, a = np.zeros(len(q)), np.zeros_like(q)
-        else:
-            v, a = evaluate_field(self.model, self.params, q, "learnable")
-        v, a = units.from_potential(v), units.from_acceleration(a)
-        return (v[0], a[0]) if single else (v, a)
+            return v - v_central, a - a_central
+        if self.model.learnable is None:
+            return np.zeros(len(q)), np.zeros_like(q)
+        return evaluate_field(self.model, self.params, q, "learnable")
 
 
 def _points_m(points_m) -> tuple[np.ndarray, bool]:
