@@ -367,3 +367,111 @@ def test_fit_default_is_network_best(arcs_file, tmp_path):
     assert solver["name"] == "levenberg-marquardt" and solver["damping_floor"] == 1e-8
     assert [m["init_seed"] for m in solver["members"]] == [0, 1, 2]
     assert "parameter directions constrained" in result.output
+
+
+@pytest.fixture(scope="module")
+def sh_model_file(tmp_path_factory):
+    """A model file of a point mass plus degree-2 harmonics, without any arcs file."""
+    from hamgrav.core.model import Model
+    from hamgrav.core.terms import PointMass, SphericalHarmonics
+    from hamgrav.fit.fitted import FittedModel
+    from hamgrav.io.models import save_model
+
+    term = SphericalHarmonics(2, 0.7)
+    params = np.array([-0.06, 0.0, 0.0, 0.025, -0.01])
+    fitted = FittedModel(Model((PointMass(),), term), params, "rock", 2.34, 43675.2)
+    return save_model(fitted, tmp_path_factory.mktemp("model") / "sh2.h5"), fitted
+
+
+FIELD_COLUMNS = [
+    "x_m", "y_m", "z_m", "potential_m2_s2", "ax_m_s2", "ay_m_s2", "az_m_s2",
+    "potential_central_m2_s2", "potential_known_m2_s2", "potential_correction_m2_s2",
+]  # fmt: skip
+
+
+def test_evaluate_points_writes_the_si_field(sh_model_file, tmp_path):
+    model, fitted = sh_model_file
+    points = np.array([[600.0, -80.0, 150.0], [-20.0, 0.0, 900.0], [1e4, 2e4, -3e4]])
+    csv = tmp_path / "points.csv"
+    rows = "\n".join(",".join(repr(float(v)) for v in p) for p in points)
+    csv.write_text(f"# a comment\nx_m, y_m, z_m\n\n{rows}\n")
+    out = tmp_path / "field.csv"
+    # no arcs file and no truth: the model alone
+    result = runner.invoke(app, ["evaluate", str(model), "--points", str(csv), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert f"wrote the field at 3 points to {out}" in " ".join(result.output.split())
+    lines = out.read_text().splitlines()
+    assert lines[0].split(",") == FIELD_COLUMNS
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert table.shape == (3, 10)
+    assert np.array_equal(table[:, :3], points)
+    np.testing.assert_allclose(table[:, 3], fitted.potential(points), rtol=1e-15)
+    np.testing.assert_allclose(table[:, 4:7], fitted.acceleration(points), rtol=1e-15)
+    np.testing.assert_allclose(table[:, 7], 2.34 / np.linalg.norm(points, axis=1), rtol=1e-14)
+    assert not table[:, 8].any()  # a point-mass known part has nothing beyond GM/r
+    np.testing.assert_allclose(table[:, 7:].sum(axis=1), table[:, 3], rtol=1e-13)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("1,2,3\n", "line 1: expected the header x_m,y_m,z_m, got '1,2,3'"),
+        ("x_km,y_km,z_km\n1,2,3\n", "line 1: expected the header x_m,y_m,z_m"),
+        ("x_m,y_m,z_m\n1,2,3\n4,5\n", "line 3: expected three finite numbers x,y,z [m]"),
+        ("x_m,y_m,z_m\n1,2,abc\n", "line 2: expected three finite numbers"),
+        ("x_m,y_m,z_m\n1,2,nan\n", "line 2: expected three finite numbers"),
+        ("x_m,y_m,z_m\n", "holds no points"),
+        ("x_m,y_m,z_m\n100,0,0\n0,0,0\n", "line 3: model"),
+    ],
+)
+def test_evaluate_points_refuses_a_bad_file(sh_model_file, tmp_path, text, message):
+    model, _ = sh_model_file
+    csv = tmp_path / "p.csv"
+    csv.write_text(text)
+    out = tmp_path / "f.csv"
+    result = runner.invoke(app, ["evaluate", str(model), "--points", str(csv), "-o", str(out)])
+    assert result.exit_code == 2, result.output
+    text = " ".join(result.output.split())
+    assert message in text and str(csv) in text
+    assert len(result.output.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_evaluate_points_option_errors(sh_model_file, tmp_path):
+    model, _ = sh_model_file
+    csv = tmp_path / "p.csv"
+    csv.write_text("x_m,y_m,z_m\n100,0,0\n")
+    result = runner.invoke(app, ["evaluate", str(model), "--points", str(csv)])
+    assert result.exit_code == 2 and "needs -o FIELD.csv" in result.output
+    result = runner.invoke(
+        app, ["evaluate", str(model), "--points", str(csv), "--uncertainty", "-o", "f.csv"]
+    )
+    assert result.exit_code == 2 and "leave out --arcs, --uncertainty and --figure" in result.output
+    result = runner.invoke(app, ["evaluate", str(model), "-o", str(tmp_path / "f.csv")])
+    assert result.exit_code == 2 and "is the field file of --points" in result.output
+    result = runner.invoke(app, ["evaluate", str(model), "--points", str(csv), "-o", str(csv)])
+    assert result.exit_code == 2 and "is also the input points" in result.output
+
+
+def test_evaluate_figure_needs_arcs_without_a_truth(arcs_file, small_arcs, tmp_path):
+    from hamgrav.core.model import Model
+    from hamgrav.core.terms import PointMass
+    from hamgrav.fit.fitted import FittedModel
+    from hamgrav.io.models import save_model
+
+    training = {"arcs_file": str(arcs_file), "truth_sha256": small_arcs.truth_digest()}
+    fitted = FittedModel(
+        Model((PointMass(),)),
+        np.zeros(0),
+        small_arcs.body_name,
+        small_arcs.gm_m3_s2,
+        small_arcs.spin_period_s,
+        body_origin_m=tuple(small_arcs.body_origin_m),
+        training=training,
+    )
+    model = save_model(fitted, tmp_path / "pm.h5")
+    png = tmp_path / "r.png"
+    result = runner.invoke(app, ["evaluate", str(model), "--figure", str(png)])
+    assert result.exit_code == 2
+    assert "residual figures are drawn for arcs without a truth" in result.output
+    assert not png.exists()

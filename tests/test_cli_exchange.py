@@ -192,3 +192,41 @@ def arcs_with_truth(small_arcs, tmp_path_factory):
     from hamgrav.io.arcs import save_arcs
 
     return save_arcs(small_arcs, tmp_path_factory.mktemp("truth") / "arcs.h5")
+
+
+def test_evaluate_figure_plots_the_reported_residuals(imported, tmp_path, monkeypatch):
+    from hamgrav.report import figures
+
+    model = tmp_path / "sh2.h5"
+    result = runner.invoke(app, ["fit", str(imported), "--model", "sh:2", "-o", str(model)])
+    assert result.exit_code == 0, result.output
+    drawn = []
+
+    def keep(*args, **kwargs):
+        drawn.append(real(*args, **kwargs))
+        return drawn[-1]
+
+    real = figures.residual_figure
+    monkeypatch.setattr(figures, "residual_figure", keep)
+    png = tmp_path / "residuals.png"
+    args = ["evaluate", str(model), "--shells", "1.5", "--json", "--figure", str(png)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.stdout)
+    assert out["figure"] == str(png)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    res = out["residuals"]
+    lines = {line.get_gid(): line for ax in drawn[0].axes for line in ax.lines if line.get_gid()}
+    assert len(lines) == 2 * 9 * 3  # position and velocity, 9 arcs, x y z
+    for name, rms, sigma in (
+        ("position", res["rms_position_m"], res["sigma_r_m"]),
+        ("velocity", res["rms_velocity_mm_s"], res["sigma_v_mm_s"]),
+    ):
+        for a in range(9):
+            y = np.stack([lines[f"{name} arc {a} {c}"].get_ydata() for c in "xyz"])
+            # what is drawn, in sigmas, is what evaluate reports as the arc's RMS
+            assert np.sqrt(np.mean((y * sigma) ** 2)) == pytest.approx(rms[a], rel=1e-12)
+            assert len(lines[f"{name} arc {a} x"].get_xdata()) == 39  # the anchor left out
+    # the figure's path is checked before any work
+    result = runner.invoke(app, ["evaluate", str(model), "--figure", str(tmp_path / "d" / "x.png")])
+    assert result.exit_code == 2 and "--figure: folder" in result.output

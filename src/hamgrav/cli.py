@@ -829,24 +829,72 @@ def evaluate(
         ),
     ] = False,
     body: BodyOption = None,
+    points_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--points",
+            help="CSV of points [m] in the model's body-fixed frame, header x_m,y_m,z_m: write "
+            "the field there to -o (needs no arcs and no truth).",
+        ),
+    ] = None,
+    output: Annotated[
+        Path | None,
+        typer.Option("-o", "--output", help="Field CSV written for --points."),
+    ] = None,
+    figure: Annotated[
+        Path | None,
+        typer.Option(
+            help="PNG of every arc's position and velocity residuals against time in noise "
+            "sigmas (arcs without a truth)."
+        ),
+    ] = None,
 ) -> None:
     """Relative field errors of a fitted model against the truth recorded with the arcs.
 
     Arcs without a truth (imported tracking) give what needs none instead: residuals per arc
-    against the noise, a chi-square, and the fitted field on the requested sets.
-    --uncertainty (or --sigma) adds the formal standard deviation of the potential,
-    sqrt(g^T C g), with C from the arcs' noise through the fit's normal equations (with a
-    network's harmonic penalty when it had one) scaled by the a posteriori variance factor
-    (see hamgrav.fit.covariance)."""
+    against the noise, a chi-square, and the fitted field on the requested sets; --figure
+    draws the residuals. --uncertainty (or --sigma) adds the formal standard deviation of the
+    potential, sqrt(g^T C g), with C from the arcs' noise through the fit's normal equations
+    (with a network's harmonic penalty when it had one) scaled by the a posteriori variance
+    factor (see hamgrav.fit.covariance).
+
+    --points FILE.csv -o FIELD.csv evaluates the model alone at the points of the file (a
+    header line x_m,y_m,z_m, then x,y,z [m] per line, in the fit's body-fixed frame) and
+    writes x_m, y_m, z_m, the potential potential_m2_s2 (V > 0, GM/r for a point mass), the
+    acceleration ax_m_s2, ay_m_s2, az_m_s2 (grad V) and the potential's parts
+    potential_central_m2_s2 (GM/r), potential_known_m2_s2 (the known part beyond it, e.g. the
+    shape prior) and potential_correction_m2_s2 (the learned term), which add up to
+    potential_m2_s2."""
     from .bodies.evaluation import evaluation_sets, set_label
     from .core.fields import field_errors
     from .io.models import load_model
 
+    if points_file is not None:
+        if arcs_file is not None or uncertainty or figure is not None:
+            raise InputError(
+                "--points evaluates the model alone at the points; leave out --arcs, "
+                "--uncertainty and --figure, or run evaluate without --points for them"
+            )
+        if output is None:
+            raise InputError(f"--points {points_file} needs -o FIELD.csv, the file to write")
+        output = _output(output, "-o", model=model_file, points=points_file)
+        _evaluate_at_points(load_model(model_file), model_file, points_file, output, as_json)
+        return
+    if output is not None:
+        raise InputError(
+            f"-o {output} is the field file of --points; give --points FILE.csv, or leave out -o"
+        )
+    figure = _output(figure, "--figure", model=model_file, arcs=arcs_file)
     # shells inside R_B cut through the body, where the truth's mascons are singular
     radii = _floats(shells, "--shells (radii r / R_B)", 1.0)
     altitudes = _floats(altitude, "--altitude (metres above the surface)", 0.0)
     fitted = load_model(model_file)
     arcs = _truth_arcs(fitted, model_file, arcs_file)
+    if figure is not None and arcs.has_truth:
+        raise InputError(
+            f"--figure {figure}: residual figures are drawn for arcs without a truth (imported "
+            "tracking), and these arcs hold one; leave out --figure"
+        )
     body = _body_for(body, arcs=arcs)
     sets = evaluation_sets(body, radii, altitudes)
     report = None
@@ -869,7 +917,7 @@ def evaluate(
         report = {"covariance": covariance.describe(), **report}
     uncertainty = report
     if not arcs.has_truth:
-        _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, uncertainty)
+        _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, uncertainty, figure)
         return
     errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
     bad = [name for name, value in errors.items() if not math.isfinite(value)]
@@ -932,15 +980,60 @@ NO_TRUTH_NOTE = (
 )
 
 
-def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool, uncertainty) -> None:
-    """The evaluate report of arcs without a truth: residuals, chi-square, fitted field."""
+def _evaluate_at_points(fitted, model_file: Path, points_file: Path, output: Path, as_json: bool):
+    """evaluate --points: the field of ``fitted`` at the points of ``points_file`` [m],
+    written as CSV to ``output`` (columns in :func:`evaluate`'s docstring)."""
+    import numpy as np
+
+    from .io.points import read_points_csv, write_columns_csv
+
+    points, lines = read_points_csv(points_file)
+    parts = {name: fitted.potential(points, name) for name in ("central", "known", "correction")}
+    columns = {"x_m": points[:, 0], "y_m": points[:, 1], "z_m": points[:, 2]}
+    columns["potential_m2_s2"] = fitted.potential(points)
+    acceleration = fitted.acceleration(points)
+    columns.update({f"a{axis}_m_s2": acceleration[:, c] for c, axis in enumerate("xyz")})
+    columns.update({f"potential_{name}_m2_s2": values for name, values in parts.items()})
+    finite = np.isfinite(np.column_stack(list(columns.values()))).all(axis=1)
+    if not finite.all():
+        k = int(np.argmin(finite))
+        raise InputError(
+            f"{points_file} line {lines[k]}: model {model_file} has no finite field at "
+            f"({', '.join(f'{v:g}' for v in points[k])}) m (the origin, or a point mass of the "
+            "model); remove the point"
+        )
+    write_columns_csv(output, columns)
+    if as_json:
+        out = {"model": str(model_file), "points": str(points_file), "output": str(output)}
+        sys.stdout.write(json.dumps({**out, "n_points": len(points)}) + "\n")
+    else:
+        console.print(f"wrote the field at {len(points)} points to {output}", highlight=False)
+
+
+def _evaluate_without_truth(
+    model_file, fitted, arcs, sets, as_json: bool, uncertainty, figure: Path | None = None
+) -> None:
+    """The evaluate report of arcs without a truth: residuals, chi-square, fitted field;
+    with ``figure``, the residuals against time drawn there (PNG)."""
     import numpy as np
 
     from .bodies.evaluation import set_label
-    from .fit.residuals import field_summary, residual_report
+    from .fit.residuals import field_summary, residual_report, residual_series
 
-    report = residual_report(fitted, arcs)
+    series = residual_series(fitted, arcs)
+    report = residual_report(fitted, arcs, series)
     field = field_summary(fitted, sets)
+    if figure is not None:
+        from .report.figures import residual_figure
+        from .report.writer import save_figure
+
+        drawn = residual_figure(
+            series.time_s,
+            series.position_m / arcs.sigma_r_m,
+            series.velocity_m_s / arcs.sigma_v_m_s,
+            title=f"residuals of {model_file.name} on {arcs.n_arcs} arcs (no truth)",
+        )
+        save_figure(drawn, figure)
     if as_json:
         out = {
             "model": str(model_file),
@@ -949,6 +1042,8 @@ def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool, uncer
             "residuals": report,
             "field": field,
         }
+        if figure is not None:
+            out["figure"] = str(figure)
         if uncertainty is not None:
             out["uncertainty"] = uncertainty
         sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
@@ -998,6 +1093,8 @@ def _evaluate_without_truth(model_file, fitted, arcs, sets, as_json: bool, uncer
     console.print(table)
     if uncertainty:
         console.print(_covariance_note(uncertainty["covariance"]), highlight=False)
+    if figure is not None:
+        console.print(f"wrote the residual figure {figure}", highlight=False)
     console.print(NO_TRUTH_NOTE, highlight=False)
 
 

@@ -42,6 +42,7 @@ def test_surface_points_raise_radially(synthetic):
     assert np.allclose(np.linalg.norm(pts, axis=1), r0 + h)
 
 
+@pytest.mark.bodies
 def test_catalogue_bodies_load(data_folder):
     catalogue = json.loads((data_folder / "catalogue.json").read_text())
     for name, entry in catalogue.items():
@@ -50,6 +51,7 @@ def test_catalogue_bodies_load(data_folder):
         assert body.brillouin_radius_m == pytest.approx(entry["brillouin_radius_m"], rel=1e-6)
 
 
+@pytest.mark.bodies
 @pytest.mark.parametrize(
     "name, paper", [("itokawa", 0.97), ("67p", 0.93), ("bennu", 0.84), ("eros", 0.96)]
 )
@@ -97,6 +99,7 @@ def test_open_mesh_rejected(monkeypatch, tmp_path):
         load_body("rock")
 
 
+@pytest.mark.bodies
 def test_unknown_body(data_folder):
     with pytest.raises(BodyDataError, match="unknown body 'vesta'; known: synthetic"):
         load_body("vesta")

@@ -92,6 +92,7 @@ def test_bad_interior_named(synthetic):
         build_truth(synthetic, "marble")
 
 
+@pytest.mark.bodies
 def test_itokawa_head_from_reference(itokawa):
     """Itokawa's head lobe is the denser region of the shared head/tail reference mascons."""
     truth = build_truth(itokawa, "head-tail", n_mascons=300, samples=40_000)
@@ -111,6 +112,7 @@ def test_neck_split_finds_synthetic_head():
     assert 0.1 < head.mean() < 0.4
 
 
+@pytest.mark.bodies
 @pytest.mark.parametrize("name", ["itokawa", "67p"])
 def test_uniform_truth_matches_polyhedron(data_folder, name):
     from hamgrav.bodies.catalogue import load_body

@@ -782,8 +782,29 @@ class GravityEstimator:
 
     def field(self, points: np.ndarray, which: str = "learnable"):
         """Potential (n,) and acceleration (n, 3) [canonical] of the fitted model's
-        ``which`` part ("learnable", "known" or "total") at canonical ``points`` (n, 3)."""
+        ``which`` part at canonical ``points`` (n, 3), as :func:`evaluate_field` gives them.
+
+        ``which`` defaults to "learnable": the learned correction alone, not the whole field;
+        "known" is the known part (central term included), "total" both. For the whole field
+        in SI at points in metres, use :meth:`potential` and :meth:`acceleration`."""
         return evaluate_field(self.model_, self.params_, points, which)
+
+    def potential(self, points_m, which: str = "total") -> np.ndarray:
+        """Potential [m^2/s^2] of the fitted field at body-fixed ``points_m`` [m] (n, 3) or
+        (3,): :meth:`FittedModel.potential` of ``fitted_`` (frame, sign and ``which`` there;
+        the default is the whole field)."""
+        return self._fitted().potential(points_m, which)
+
+    def acceleration(self, points_m, which: str = "total") -> np.ndarray:
+        """Acceleration grad V [m/s^2] of the fitted field at body-fixed ``points_m`` [m]:
+        :meth:`FittedModel.acceleration` of ``fitted_`` (the default is the whole field)."""
+        return self._fitted().acceleration(points_m, which)
+
+    def _fitted(self) -> FittedModel:
+        fitted = getattr(self, "fitted_", None)
+        if fitted is None:
+            raise InputError("the estimator has no fitted field yet; call fit(arcs) first")
+        return fitted
 
 
 def _warn_if_underdetermined(problem: ArcProblem, ensemble: bool, arcs: Arcs, train) -> None:

@@ -1,4 +1,5 @@
-"""A fitted model: structure, parameters, body, units and how it was obtained."""
+"""A fitted model: structure, parameters, body, units and how it was obtained; its gravity
+field at points in metres."""
 
 from __future__ import annotations
 
@@ -7,9 +8,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.arcs import BodyRecord
-from ..core.model import Model
+from ..core.model import Model, evaluate_field
+from ..errors import InputError
+from ..units import CanonicalUnits
 
-__all__ = ["FittedModel"]
+__all__ = ["FittedModel", "FIELD_PARTS"]
+
+#: The parts of a fitted field that :meth:`FittedModel.potential` and
+#: :meth:`FittedModel.acceleration` evaluate: "total" = "central" + "known" + "correction"
+#: ("learnable" is another name for "correction"). Per-trajectory terms (SRP) are never part
+#: of the field.
+FIELD_PARTS = ("total", "central", "known", "correction", "learnable")
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,3 +64,93 @@ class FittedModel:
     def learnable_params(self) -> np.ndarray:
         """The learnable term's parameters (n_learn,)."""
         return np.asarray(self.params)[: self.model.n_learn]
+
+    @property
+    def units(self) -> CanonicalUnits:
+        """The canonical units of the fit (from ``gm_m3_s2`` and ``spin_period_s``)."""
+        return CanonicalUnits(self.gm_m3_s2, self.spin_period_s)
+
+    def potential(self, points_m, which: str = "total") -> np.ndarray:
+        """Gravitational potential V [m^2/s^2] at ``points_m`` [m], shape (n, 3) or (3,);
+        returns (n,) or a scalar array.
+
+        Frame: the fit's body-fixed frame, whose origin is ``body_origin_m`` in the body mesh's
+        frame (a point p of the mesh's frame is ``p - body_origin_m`` here). Sign: hamgrav's V
+        is positive, V = GM / r for a point mass, and the acceleration is +grad V.
+
+        ``which`` (default "total"): "total" is the whole gravity field, known part plus
+        learned correction; "central" is GM / r with the body's GM (``gm_m3_s2``); "known" is
+        the known part beyond the central term (the shape prior's departure from a point mass;
+        zero for a point-mass known part); "correction" (or "learnable") is the learned term
+        (zero for a model without one). The parts add up to the total. Note that
+        :func:`hamgrav.core.model.evaluate_field`'s "known" includes the central term.
+        Per-trajectory terms (SRP) are never part of the field. The field is not finite at
+        the origin (nor at a mascon of the model).
+        """
+        return self._field(points_m, which)[0]
+
+    def acceleration(self, points_m, which: str = "total") -> np.ndarray:
+        """Gravitational acceleration grad V [m/s^2] of ``which`` part at ``points_m`` [m],
+        shape (n, 3) or (3,); returns (n, 3) or (3,). Frame, sign and parts as in
+        :meth:`potential` (it points towards the body: -GM r / r^3 for a point mass)."""
+        return self._field(points_m, which)[1]
+
+    def _field(self, points_m, which: str) -> tuple[np.ndarray, np.ndarray]:
+        """Potential [m^2/s^2] and acceleration [m/s^2] of part ``which`` at points [m]."""
+        if which not in FIELD_PARTS:
+            raise InputError(
+                f"which must be one of {', '.join(FIELD_PARTS)}, got {which!r}; "
+                "'total' is the whole gravity field"
+            )
+        points, single = _points_m(points_m)
+        if not len(points):
+            return np.zeros(0), np.zeros((0, 3))
+        units = self.units
+        q = units.to_length(points)
+        with np.errstate(divide="ignore", invalid="ignore"):  # the origin: inf or NaN, no warning
+            v, a = self._canonical_field(q, which)
+        v, a = units.from_potential(v), units.from_acceleration(a)
+        return (v[0], a[0]) if single else (v, a)
+
+    def _canonical_field(self, q: np.ndarray, which: str) -> tuple[np.ndarray, np.ndarray]:
+        """Potential and acceleration [canonical] of part ``which`` at canonical points q."""
+        if which in ("total", "central", "known"):
+            r = np.linalg.norm(q, axis=1)
+            v_central, a_central = 1.0 / r, -q / r[:, None] ** 3  # GM = 1 canonical
+        if which == "total":
+            return evaluate_field(self.model, self.params, q, "total")
+        if which == "central":
+            return v_central, a_central
+        if which == "known":
+            # the numerics' known part holds the central term (a point mass, or the prior's
+            # whole mass): take it out so that the parts add up to the total
+            v, a = evaluate_field(self.model, self.params, q, "known")
+            return v - v_central, a - a_central
+        if self.model.learnable is None:
+            return np.zeros(len(q)), np.zeros_like(q)
+        return evaluate_field(self.model, self.params, q, "learnable")
+
+
+def _points_m(points_m) -> tuple[np.ndarray, bool]:
+    """``points_m`` as a finite (n, 3) float array [m], and whether one point (3,) was given."""
+    try:
+        points = np.array(points_m, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(
+            "points_m must be numbers [m] of shape (n, 3) or (3,); give x, y, z per point"
+        ) from None
+    single = points.shape == (3,)
+    if single:
+        points = points[None]
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(
+            f"points_m must have shape (n, 3) or (3,), got {points.shape}; give x, y, z [m] "
+            "per point"
+        )
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise InputError(
+            f"points_m has {int(bad.sum())} point(s) with a non-finite coordinate (first: row "
+            f"{int(np.argmax(bad))}); give finite x, y, z [m]"
+        )
+    return points, single

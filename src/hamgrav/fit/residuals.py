@@ -17,6 +17,8 @@ same S) is reported beside it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.linalg import solve_triangular
 
@@ -30,10 +32,26 @@ from .covariance import sample_covariance
 from .estimator import require_noise
 from .fitted import FittedModel
 
-__all__ = ["residual_report", "field_summary"]
+__all__ = ["ResidualSeries", "residual_series", "residual_report", "field_summary"]
 
 
-def _residuals(problem: ArcProblem, params: np.ndarray, units: CanonicalUnits):
+@dataclass(frozen=True, eq=False)
+class ResidualSeries:
+    """Per-sample residuals (observed minus predicted) of arcs under a fitted model, each arc
+    anchored at its first sample, which is left out (it has no residual).
+
+    Attributes:
+        time_s: (n_arcs, m - 1) the samples' times [s], as the arcs hold them.
+        position_m: (n_arcs, m - 1, 3) body-fixed position residuals [m].
+        velocity_m_s: (n_arcs, m - 1, 3) rotating-frame velocity residuals [m/s].
+    """
+
+    time_s: np.ndarray
+    position_m: np.ndarray
+    velocity_m_s: np.ndarray
+
+
+def _residuals(problem: ArcProblem, params: np.ndarray, units: CanonicalUnits) -> ResidualSeries:
     arcs = problem.arcs
     pred = problem.predict(params).states[:, 1:]
     obs = arcs.states[:, 1:]
@@ -41,22 +59,34 @@ def _residuals(problem: ArcProblem, params: np.ndarray, units: CanonicalUnits):
     v_obs = momentum_to_velocity(obs[..., :3], obs[..., 3:])
     v_pred = momentum_to_velocity(pred[..., :3], pred[..., 3:])
     dv = units.from_velocity(v_obs - v_pred)
-    return dr, dv
+    return ResidualSeries(units.from_time(arcs.times[:, 1:]), dr, dv)
 
 
-def residual_report(fitted: FittedModel, arcs: Arcs) -> dict:
-    """Residuals of ``fitted`` on ``arcs`` against their noise (see the module docstring).
+def _problem(fitted: FittedModel, arcs: Arcs) -> ArcProblem:
+    if arcs.samples_per_arc < 2:
+        raise ValueError("arcs need at least two samples (the first is the anchor)")
+    return ArcProblem(
+        fitted.model, arcs, estimate_trajectory_params=fitted.estimate_trajectory_params
+    )
+
+
+def residual_series(fitted: FittedModel, arcs: Arcs) -> ResidualSeries:
+    """The per-sample residuals of ``fitted`` on ``arcs`` (what :func:`residual_report`
+    summarises per arc, and the residual figure plots)."""
+    units = CanonicalUnits(arcs.gm_m3_s2, arcs.spin_period_s)
+    return _residuals(_problem(fitted, arcs), np.asarray(fitted.params, dtype=float), units)
+
+
+def residual_report(fitted: FittedModel, arcs: Arcs, series: ResidualSeries | None = None) -> dict:
+    """Residuals of ``fitted`` on ``arcs`` against their noise (see the module docstring);
+    ``series``: their :func:`residual_series` when already computed (not propagated again).
 
     Returns plain data: ``rms_position_m`` and ``rms_velocity_mm_s`` (one per arc),
     ``sigma_r_m``, ``sigma_v_mm_s``, ``chi2``, ``dof``, ``chi2_per_dof`` and
     ``chi2_per_dof_no_correction`` (learnable parameters zero).
     """
-    if arcs.samples_per_arc < 2:
-        raise ValueError("arcs need at least two samples (the first is the anchor)")
     units = CanonicalUnits(arcs.gm_m3_s2, arcs.spin_period_s)
-    problem = ArcProblem(
-        fitted.model, arcs, estimate_trajectory_params=fitted.estimate_trajectory_params
-    )
+    problem = _problem(fitted, arcs)
     params = np.asarray(fitted.params, dtype=float)
     none = params.copy()
     none[: fitted.model.n_learn] = 0.0
@@ -84,7 +114,8 @@ def residual_report(fitted: FittedModel, arcs: Arcs) -> dict:
 
     value = chi2(params)
     value_none = chi2(none)
-    dr, dv = _residuals(problem, params, units)
+    series = series if series is not None else _residuals(problem, params, units)
+    dr, dv = series.position_m, series.velocity_m_s
     n_obs = dr.size + dv.size
     dof = max(1, n_obs - fitted.model.n_learn)
     return {

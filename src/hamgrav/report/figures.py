@@ -11,7 +11,13 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-__all__ = ["campaign_figure", "orbits_and_radii_figure", "miss_cdf_figure", "logdet_figure"]
+__all__ = [
+    "campaign_figure",
+    "orbits_and_radii_figure",
+    "miss_cdf_figure",
+    "logdet_figure",
+    "residual_figure",
+]
 
 
 def _shape_and_arcs_3d(ax, vertices_m, faces, arc_positions_m, arc_trajectory) -> list:
@@ -166,5 +172,51 @@ def logdet_figure(greedy: list[float], randoms: list[list[float]]) -> Figure:
     ax.set_xlabel("orbits selected")
     ax.set_ylabel("log det of accumulated information")
     ax.legend()
+    fig.tight_layout()
+    return fig
+
+
+def residual_figure(
+    time_s: np.ndarray,
+    position_sigmas: np.ndarray,
+    velocity_sigmas: np.ndarray,
+    *,
+    title: str = "",
+) -> Figure:
+    """Residuals of tracking arcs against time, in noise sigmas: position residuals over
+    sigma_r (top) and rotating-frame velocity residuals over sigma_v (bottom), one line per arc
+    and component (x, y, z in three colours), at times ``time_s`` (n_arcs, k) [s] drawn in
+    hours since the earliest sample; ``position_sigmas`` and ``velocity_sigmas`` are
+    (n_arcs, k, 3). Each line's ``gid`` is "position arc A x" (quantity, arc A, component), so
+    that what is drawn can be read back; the dotted lines mark +-1 sigma."""
+    time_s = np.asarray(time_s, dtype=float)
+    hours = (time_s - (time_s.min() if time_s.size else 0.0)) / 3600.0
+    fig = Figure(figsize=(9, 6))
+    axes = fig.subplots(2, 1, sharex=True)
+    panels = (
+        ("position", position_sigmas, "position residual / sigma_r"),
+        ("velocity", velocity_sigmas, "velocity residual / sigma_v"),
+    )
+    for ax, (name, values, label) in zip(axes, panels, strict=True):
+        values = np.asarray(values, dtype=float)
+        for a in range(len(hours)):
+            for c, axis in enumerate("xyz"):
+                ax.plot(
+                    hours[a],
+                    values[a, :, c],
+                    color=f"C{c}",
+                    lw=0.8,
+                    marker=".",
+                    ms=2,
+                    label=axis if a == 0 else None,
+                    gid=f"{name} arc {a} {axis}",
+                )
+        for level in (-1.0, 1.0):
+            ax.axhline(level, color="k", ls=":", lw=0.8)
+        ax.set_ylabel(label)
+    axes[0].legend(fontsize=8, ncols=3, loc="upper right")
+    axes[1].set_xlabel("time since the first sample [h]")
+    if title:
+        axes[0].set_title(title)
     fig.tight_layout()
     return fig
