@@ -9,7 +9,9 @@ here, to hamgrav's canonical body-fixed states (q, p):
   with a :class:`~hamgrav.bodies.rotation.RotationModel` (pole, prime meridian at its epoch,
   the body's spin period). EME2000 is treated as the ICRF: the frame bias (about 23 mas, 0.1
   mm per km of range) is neglected. The states must be relative to the body's centre
-  (CENTER_NAME names the body) and its frame origin (``origin_m`` in the mesh frame).
+  (CENTER_NAME names the body: its name as a word, its NAIF ID or a SPICE name of it, see
+  :func:`hamgrav.io.naif.centre_is_body`; never a barycentre) and its frame origin
+  (``origin_m`` in the mesh frame).
 - Time. Every TIME_SYSTEM astropy knows (UTC, TAI, TT, TDB, ...) is read and converted to TDB;
   canonical time is (t - epoch) / (spin_period_s / 2 pi), with ``epoch`` the TDB epoch of
   canonical time 0.
@@ -48,6 +50,7 @@ from ..bodies.rotation import RotationModel
 from ..core.arcs import Arcs
 from ..errors import DatasetError, HamgravWarning, InputError
 from .files import same_file
+from .naif import centre_is_body
 from .oem import REF_FRAME as HAMGRAV_FRAME
 from .tracks import (
     Track,
@@ -231,9 +234,9 @@ def import_oem(
                     f"{path}: CENTER_NAME {centre!r} is a barycentre, not the centre of body "
                     f"{name!r}; the states must be relative to the body itself"
                 )
-            # the name as a word of it ('25143 ITOKAWA', '67P/CHURYUMOV-GERASIMENKO')
-            word = rf"(?<![a-z0-9]){re.escape(name.lower())}(?![a-z0-9])"
-            if not re.search(word, centre.lower()):
+            # the name as a word of it ('25143 ITOKAWA', '67P/CHURYUMOV-GERASIMENKO'), or
+            # the body's NAIF ID or SPICE name ('2025143', 'CHURYUMOV-GERASIMENKO')
+            if not centre_is_body(centre, body):
                 raise InputError(
                     f"{path}: CENTER_NAME {centre!r} is not body {name!r}; the states must be "
                     "relative to the body (pass the matching --body)"
