@@ -1,4 +1,4 @@
-"""The import-oem and export commands (tracking in, coefficients and networks out)."""
+"""The import-oem, import-spk and export commands (tracking in, coefficients and networks out)."""
 
 import json
 
@@ -33,6 +33,10 @@ def test_import_oem_round_trip(imported, small_arcs):
     arcs = load_arcs(imported)
     np.testing.assert_allclose(arcs.times, small_arcs.times, rtol=0, atol=1e-9)
     np.testing.assert_allclose(arcs.states, small_arcs.states, rtol=0, atol=1e-9)
+    # the import records the body it was made with, in the files' frame
+    assert arcs.body.mesh_sha256 == small_arcs.body.mesh_sha256
+    assert arcs.body.origin_m == arcs.body_origin_m
+    assert arcs.body.source["kind"] == "synthetic"
 
 
 def test_fit_and_evaluate_without_truth(imported, tmp_path):
@@ -230,3 +234,79 @@ def test_evaluate_figure_plots_the_reported_residuals(imported, tmp_path, monkey
     # the figure's path is checked before any work
     result = runner.invoke(app, ["evaluate", str(model), "--figure", str(tmp_path / "d" / "x.png")])
     assert result.exit_code == 2 and "--figure: folder" in result.output
+
+
+@pytest.fixture(scope="module")
+def spk_file(small_arcs, synthetic, tmp_path_factory):
+    from hamgrav.io.spk import write_spk
+
+    return write_spk(small_arcs, tmp_path_factory.mktemp("spk") / "arcs.bsp", synthetic)
+
+
+def test_import_spk_round_trip(spk_file, small_arcs, tmp_path):
+    out = tmp_path / "arcs.h5"
+    targets = ["--target", "-1000", "--target", "-1001", "--target=-1002"]
+    result = runner.invoke(
+        app, ["import-spk", str(spk_file), "--body", "synthetic", *targets, "-o", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    assert "wrote 9 arcs of 40 samples of 3 targets" in " ".join(result.output.split())
+    arcs = load_arcs(out)
+    np.testing.assert_allclose(arcs.times, small_arcs.times, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(arcs.states, small_arcs.states, rtol=0, atol=1e-9)
+
+
+def test_import_spk_errors_are_one_line(spk_file, tmp_path):
+    import spiceypy
+
+    out = tmp_path / "a.h5"
+    ets = 9.5e8 + 60.0 * np.arange(10)
+    states = np.tile([1.0, 0.0, 0.0, 0.0, 1e-4, 0.0], (10, 1))
+    sun = tmp_path / "sun.bsp"
+    handle = spiceypy.spkopn(str(sun), "test", 0)
+    spiceypy.spkw13(handle, -77, 10, "J2000", ets[0], ets[-1], "test", 3, 10, states, ets)
+    spiceypy.spkcls(handle)
+    text = tmp_path / "notes.txt"
+    text.write_text("not a kernel\n")
+    cases = [
+        ([str(spk_file), "--target", "-5"], "hold no trajectory of target -5"),
+        ([str(sun), "--target", "-77", "--center", "3999999"], "not to body 'synthetic'"),
+        ([str(spk_file), "--target", "-1000", "--start", "2029-01-01"], "outside the coverage"),
+        ([str(text), "--target", "-1000"], "is not a SPICE kernel hamgrav reads"),
+        ([str(tmp_path / "x.bsp"), "--target", "-1000"], "kernel file not found"),
+        ([str(spk_file), "--target", "-1000", "--pole-ra", "3"], "give all of --pole-ra"),
+    ]
+    for args, message in cases:
+        result = runner.invoke(app, ["import-spk", *args, "--body", "synthetic", "-o", str(out)])
+        assert result.exit_code == 2, result.output
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], result.output
+        assert not out.exists()
+
+
+def test_simulate_writes_an_spk_beside_the_arcs(tmp_path):
+    toml = tmp_path / "c.toml"
+    toml.write_text(
+        'body = "synthetic"\ninterior = "uniform"\nn_mascons = 100\nseed = 5\n[orbits]\n'
+        "families = [[1.5, 30.0], [1.9, 70.0]]\n[tracking]\narcs_per_orbit = 2\n"
+        "window_spin_periods = 0.3\n"
+    )
+    out, spk = tmp_path / "arcs.h5", tmp_path / "arcs.bsp"
+    result = runner.invoke(app, ["simulate", str(toml), "-o", str(out), "--spk", str(spk)])
+    assert result.exit_code == 0, result.output
+    back = tmp_path / "back.h5"
+    result = runner.invoke(
+        app,
+        ["import-spk", str(spk), "--body", "synthetic", "--target", "-1000", "--target", "-1001"]
+        + ["-o", str(back)],
+    )
+    assert result.exit_code == 0, result.output
+    arcs, again = load_arcs(out), load_arcs(back)
+    np.testing.assert_allclose(again.times, arcs.times, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(again.states, arcs.states, rtol=0, atol=1e-9)
+    # the SPK is checked before the simulation: a folder is refused, and nothing is written
+    result = runner.invoke(
+        app, ["simulate", str(toml), "-o", str(tmp_path / "b.h5"), "--spk", str(tmp_path)]
+    )
+    assert result.exit_code == 2 and "--spk" in result.output
+    assert not (tmp_path / "b.h5").exists()

@@ -349,6 +349,13 @@ def simulate(
         Path | None,
         typer.Option(help="Also export the noisy arcs as CCSDS OEM, one file per orbit, here."),
     ] = None,
+    spk: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the noisy arcs as a SPICE SPK (type 13, J2000, target -1000 - k "
+            "for orbit k) to this file (.bsp)."
+        ),
+    ] = None,
 ) -> None:
     """Simulate a tracking campaign and write its arcs (HDF5)."""
     from .bodies.catalogue import check_body_name
@@ -358,6 +365,8 @@ def simulate(
     from .sim.campaign import load_campaign, simulate_campaign
 
     _output(output, CAMPAIGN=campaign)
+    if spk is not None:
+        check_output(spk, "--spk", {"CAMPAIGN": campaign, "-o": output})
     if oem is not None:
         if oem.exists() and not oem.is_dir():
             raise InputError(f"--oem {oem} exists and is not a folder; give a folder path")
@@ -376,6 +385,10 @@ def simulate(
     save_arcs(arcs, output)
     if oem is not None:
         export_oem_by_trajectory(arcs, _output_folder(oem, "--oem"))
+    if spk is not None:
+        from .io.spk import write_spk
+
+        write_spk(arcs, spk, load_body(config.body))
     console.print(
         f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples "
         f"({arcs.n_arcs * arcs.samples_per_arc * 6} scalars) to {output}"
@@ -464,6 +477,123 @@ def import_oem_command(
     console.print(
         f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples from {len(files)} files "
         f"to {output} (frames: {', '.join(cfg['frames'])}; canonical time 0 = "
+        f"{cfg['epoch_tdb']} TDB; noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} "
+        f"m, sigma_v {arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
+        highlight=False,
+    )
+
+
+@_command(app, "import-spk")
+def import_spk_command(
+    kernels: Annotated[
+        list[Path],
+        typer.Argument(metavar="KERNELS...", help="SPICE kernels: SPKs (.bsp), PCK/FK."),
+    ],
+    body_name: Annotated[str, typer.Option("--body", help="The central body (catalogue name).")],
+    target: Annotated[
+        list[str],
+        typer.Option(
+            help="Spacecraft NAIF ID or name, one trajectory each (repeat for several; "
+            "hamgrav's own SPKs: -1000, -1001, ...)."
+        ),
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],
+    start: Annotated[
+        str | None, typer.Option(help="TDB epoch (ISO) to read from (default: coverage start).")
+    ] = None,
+    stop: Annotated[
+        str | None, typer.Option(help="TDB epoch (ISO) to read to (default: coverage end).")
+    ] = None,
+    step: Annotated[
+        float | None,
+        typer.Option(help="Sample every this many seconds [s] (default: the segments' epochs)."),
+    ] = None,
+    samples: Annotated[
+        int | None,
+        typer.Option(help="Samples per arc (default: each gap-free run of samples is one arc)."),
+    ] = None,
+    max_gap: Annotated[
+        float | None,
+        typer.Option(help="Split where samples are more than this apart [s] (1.5 median step)."),
+    ] = None,
+    sigma_r: Annotated[float | None, typer.Option(help="Position noise per component [m].")] = None,
+    sigma_v: Annotated[
+        float | None, typer.Option(help="Rotating-frame velocity noise per component [m/s].")
+    ] = None,
+    epoch: Annotated[
+        str | None,
+        typer.Option(
+            help="TDB epoch of canonical time 0 (ISO; default: the epoch in hamgrav's own "
+            "SPK comment, else the first sample)."
+        ),
+    ] = None,
+    origin: Annotated[
+        str | None, typer.Option(help="Frame origin in the body mesh's frame, x,y,z [m].")
+    ] = None,
+    center: Annotated[
+        int | None,
+        typer.Option(help="NAIF ID of the body in the SPKs (default: the body's own)."),
+    ] = None,
+    pole_ra: Annotated[
+        float | None, typer.Option(help="No body frame in the kernels: pole RA [deg, ICRF].")
+    ] = None,
+    pole_dec: Annotated[
+        float | None, typer.Option(help="No body frame in the kernels: pole dec [deg, ICRF].")
+    ] = None,
+    prime_meridian: Annotated[
+        float | None,
+        typer.Option(help="No body frame in the kernels: prime meridian W0 [deg]."),
+    ] = None,
+    rotation_epoch: Annotated[
+        str, typer.Option(help="TDB epoch (ISO) of the prime meridian angle W0.")
+    ] = "2000-01-01T12:00:00",
+) -> None:
+    """Turn SPICE SPK trajectories (one spacecraft per --target) into an arcs file.
+
+    States relative to the body are taken in the body-fixed frame the kernels define (a PCK
+    or FK), else in J2000 rotated with a rotation model (the options, hamgrav's own SPK
+    comment, or the catalogue). The arcs carry no truth: fit them, and evaluate reports
+    residuals against the noise."""
+    from .bodies.rotation import RotationModel
+    from .io.arcs import save_arcs
+    from .io.spk import import_spk
+
+    _output(output, **{f"KERNEL {k}": k for k in kernels})
+    body_obj = load_body(body_name)
+    rotation = None
+    given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
+    if any(given) and not all(given):
+        raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
+    if all(given):
+        rotation = RotationModel(
+            pole_ra, pole_dec, prime_meridian, body_obj.spin_period_s, rotation_epoch
+        )
+    origin_m = None
+    if origin is not None:
+        origin_m = _floats(origin, "--origin")
+        if len(origin_m) != 3:
+            raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
+    arcs = import_spk(
+        kernels,
+        body_obj,
+        target,
+        start=start,
+        stop=stop,
+        step_s=step,
+        samples=samples,
+        max_gap_s=max_gap,
+        rotation=rotation,
+        epoch=epoch,
+        sigma_r_m=sigma_r,
+        sigma_v_m_s=sigma_v,
+        origin_m=origin_m,
+        centre=center,
+    )
+    save_arcs(arcs, output)
+    cfg = arcs.config
+    console.print(
+        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples of {len(target)} "
+        f"targets to {output} (frames: {', '.join(cfg['frames'])}; canonical time 0 = "
         f"{cfg['epoch_tdb']} TDB; noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} "
         f"m, sigma_v {arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
         highlight=False,

@@ -433,3 +433,27 @@ def test_far_warning_threshold(synthetic, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", HamgravWarning)
         import_oem([near], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3)
+
+
+def test_oem_centre_as_naif_id_or_spice_name(synthetic, tmp_path):
+    """The synthetic body standing in for Itokawa (NAIF ID set): its ID and SPICE's name
+    are its CENTER_NAME; another body's are not, nor is its barycentre."""
+    stand_in = replace(synthetic, naif_id=2025143)
+    noise = {"sigma_r_m": 1.0, "sigma_v_m_s": 1e-3}
+    text = _gap_file(tmp_path / "gap.oem").read_text()
+    for k, centre in enumerate(("2025143", "ITOKAWA", "SYNTHETIC")):
+        path = tmp_path / f"ok-{k}.oem"
+        path.write_text(text.replace("CENTER_NAME = SYNTHETIC", f"CENTER_NAME = {centre}"))
+        assert import_oem([path], stand_in, **noise).n_arcs == 2
+    for k, centre in enumerate(("2000433", "EROS", "1000012", "CHURYUMOV-GERASIMENKO")):
+        path = tmp_path / f"other-{k}.oem"
+        path.write_text(text.replace("CENTER_NAME = SYNTHETIC", f"CENTER_NAME = {centre}"))
+        with pytest.raises(InputError, match=f"CENTER_NAME '{centre}' is not body 'synthetic'"):
+            import_oem([path], stand_in, **noise)
+        # and without a NAIF ID the synthetic body is none of them
+        with pytest.raises(InputError, match="is not body"):
+            import_oem([path], synthetic, **noise)
+    path = tmp_path / "bary.oem"
+    path.write_text(text.replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = ITOKAWA BARYCENTER"))
+    with pytest.raises(InputError, match="is a barycentre"):
+        import_oem([path], stand_in, **noise)

@@ -9,14 +9,17 @@ here, to hamgrav's canonical body-fixed states (q, p):
   with a :class:`~hamgrav.bodies.rotation.RotationModel` (pole, prime meridian at its epoch,
   the body's spin period). EME2000 is treated as the ICRF: the frame bias (about 23 mas, 0.1
   mm per km of range) is neglected. The states must be relative to the body's centre
-  (CENTER_NAME names the body) and its frame origin (``origin_m`` in the mesh frame).
+  (CENTER_NAME names the body: its name as a word, its NAIF ID or a SPICE name of it, see
+  :func:`hamgrav.io.naif.centre_is_body`; never a barycentre) and its frame origin
+  (``origin_m`` in the mesh frame).
 - Time. Every TIME_SYSTEM astropy knows (UTC, TAI, TT, TDB, ...) is read and converted to TDB;
   canonical time is (t - epoch) / (spin_period_s / 2 pi), with ``epoch`` the TDB epoch of
   canonical time 0.
 - Arcs. Each segment is split at gaps (a step longer than ``max_gap_s``, default 1.5 times
   the segment's median step), and each run of samples is cut into arcs of ``samples``
   consecutive samples (the remainder of a run is dropped and counted). Without ``samples``
-  each run is one arc, and all runs must then have the same length.
+  each run is one arc, and all runs must then have the same length. This part, and the
+  checks of the states, are shared with the SPK importer (:mod:`hamgrav.io.tracks`).
 - Noise. ``sigma_r_m`` [m] and ``sigma_v_m_s`` [m/s] per component, else from the
   covariance blocks when every file has them: sqrt of the mean of trace(C_rr) / 3 and
   trace(C_vv) / 3 over all blocks (traces do not depend on the covariance frame; the
@@ -37,7 +40,6 @@ import math
 import os
 import re
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,13 +47,20 @@ from astropy.time import Time
 
 from ..bodies.catalogue import Body
 from ..bodies.rotation import RotationModel
-from ..core.arcs import NO_TRUTH, Arcs
-from ..core.geometry import points_inside
-from ..core.mascons import MasconSet
+from ..core.arcs import Arcs
 from ..errors import DatasetError, HamgravWarning, InputError
-from .arcs import MAX_STATE
 from .files import same_file
+from .naif import centre_is_body
 from .oem import REF_FRAME as HAMGRAV_FRAME
+from .tracks import (
+    Track,
+    check_arc_options,
+    check_noise,
+    epoch_zero,
+    rotation_zero,
+    tracks_to_arcs,
+)
+from .tracks import check_positions as _check_positions  # noqa: F401 (its former home)
 
 __all__ = ["import_oem", "BODY_FIXED_FRAMES", "INERTIAL_FRAMES"]
 
@@ -146,24 +155,6 @@ def _quiet_erfa(call, notes: set):
     return result
 
 
-def _iso(t: Time) -> str:
-    """A TDB Time as an ISO string to the microsecond."""
-    t = t.tdb.copy()
-    t.precision = 6
-    return str(t.isot)
-
-
-def _runs(seconds: np.ndarray, max_gap_s: float | None) -> list[slice]:
-    """Runs of samples without a gap (see the module docstring)."""
-    if len(seconds) < 2:
-        return [slice(0, len(seconds))]
-    steps = np.diff(seconds)
-    limit = max_gap_s if max_gap_s is not None else 1.5 * float(np.median(steps))
-    cuts = np.flatnonzero(steps > limit) + 1
-    edges = [0, *cuts.tolist(), len(seconds)]
-    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-
-
 def import_oem(
     paths,
     body: Body,
@@ -200,20 +191,13 @@ def import_oem(
     paths = [Path(p) for p in ([paths] if isinstance(paths, str | os.PathLike) else paths)]
     if not paths:
         raise InputError("give at least one OEM file")
-    if samples is not None and int(samples) < 2:
-        raise InputError(f"--samples must be at least 2, got {samples}")
-    if max_gap_s is not None and not max_gap_s > 0:
-        raise InputError(f"--max-gap must be a positive number of seconds, got {max_gap_s}")
-    for name, value in (("--sigma-r", sigma_r_m), ("--sigma-v", sigma_v_m_s)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise InputError(f"{name} must be a positive number, got {value!r}")
+    check_arc_options(samples, max_gap_s, sigma_r_m, sigma_v_m_s)
     rotation_source = (
         "--rotation-epoch"
         if rotation is not None
         else f"the rotation epoch of body {body.name!r} in the catalogue"
     )
     rotation = rotation if rotation is not None else body.rotation
-    units = body.units
     name = body.name
 
     for k, path in enumerate(paths):
@@ -241,7 +225,7 @@ def import_oem(
 
     # every sample: (file, segment) -> epochs (TDB Time), positions, velocities [m, m/s]
     segments = []
-    for path, message in zip(paths, messages, strict=True):
+    for traj, (path, message) in enumerate(zip(paths, messages, strict=True)):
         for seg in message.segments:
             meta = seg.metadata
             centre = str(meta["CENTER_NAME"])
@@ -250,9 +234,9 @@ def import_oem(
                     f"{path}: CENTER_NAME {centre!r} is a barycentre, not the centre of body "
                     f"{name!r}; the states must be relative to the body itself"
                 )
-            # the name as a word of it ('25143 ITOKAWA', '67P/CHURYUMOV-GERASIMENKO')
-            word = rf"(?<![a-z0-9]){re.escape(name.lower())}(?![a-z0-9])"
-            if not re.search(word, centre.lower()):
+            # the name as a word of it ('25143 ITOKAWA', '67P/CHURYUMOV-GERASIMENKO'), or
+            # the body's NAIF ID or SPICE name ('2025143', 'CHURYUMOV-GERASIMENKO')
+            if not centre_is_body(centre, body):
                 raise InputError(
                     f"{path}: CENTER_NAME {centre!r} is not body {name!r}; the states must be "
                     "relative to the body (pass the matching --body)"
@@ -270,32 +254,16 @@ def import_oem(
             if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
                 raise DatasetError(f"{path}: a state is not finite")
             covs = [c.matrix for c in seg.covariances]
-            segments.append((path, kind, epochs, pos, vel, covs))
+            segments.append((path, Track(path, traj, kind, epochs, pos, vel), covs))
 
     epoch_source = "--epoch" if epoch else "the epoch in the files' hamgrav COMMENT lines"
     epoch = epoch or first.get("epoch")
-    if epoch is None:
-        t0 = min((seg[2][0] for seg in segments), key=lambda t: t.jd1 + t.jd2)
-    else:
-        try:
-            t0 = Time(epoch, scale="tdb")
-        except ValueError:  # astropy's message lists every format it tried
-            raise InputError(
-                f"{epoch_source} ({epoch!r}) is not an ISO date; give --epoch as TDB "
-                "YYYY-MM-DDTHH:MM:SS"
-            ) from None
-    if rotation is not None:
-        try:
-            rotation_t0 = Time(rotation.epoch, scale="tdb")
-        except ValueError:
-            raise InputError(
-                f"{rotation_source} ({rotation.epoch!r}) is not an ISO date; give "
-                "--rotation-epoch as TDB YYYY-MM-DDTHH:MM:SS"
-            ) from None
+    t0 = epoch_zero(epoch, epoch_source, [seg[1] for seg in segments])
+    rotation_t0 = rotation_zero(rotation, rotation_source)
 
     # noise levels
-    covs = [c for seg in segments for c in seg[5]]
-    has_cov = all(seg[5] for seg in segments)
+    covs = [c for seg in segments for c in seg[2]]
+    has_cov = all(seg[2] for seg in segments)
     noise_source = "options"
     if sigma_r_m is None or sigma_v_m_s is None:
         # the one option given, if any: the other level comes from the files
@@ -308,7 +276,7 @@ def import_oem(
         )
         if has_cov and covs:
             for seg in segments:
-                diagonals = np.diagonal(np.asarray(seg[5], dtype=float), axis1=1, axis2=2)
+                diagonals = np.diagonal(np.asarray(seg[2], dtype=float), axis1=1, axis2=2)
                 if not np.all(np.isfinite(diagonals)) or np.any(diagonals < 0):
                     raise InputError(
                         f"{seg[0]}: a covariance block has a negative or non-finite variance "
@@ -330,75 +298,26 @@ def import_oem(
                 "and --sigma-v [m/s]"
             )
 
-    # zero is noise-free (hamgrav's export of a noise-free campaign); negative or NaN is wrong
-    levels = (("sigma_r", sigma_r_m, "m"), ("sigma_v", sigma_v_m_s, "m/s"))
-    bad = [(k, v, u) for k, v, u in levels if not (math.isfinite(float(v)) and float(v) >= 0)]
-    if bad:
-        raise InputError(
-            f"noise from {noise_source}: "
-            + ", ".join(f"{k} is {v!r} {u}" for k, v, u in bad)
-            + "; a noise level is a standard deviation >= 0: pass "
-            + " and ".join(f"--{k.replace('_', '-')} [{u}]" for k, _, u in bad)
-        )
-
-    # states in the body-fixed frame, canonical; arcs cut from gap-free runs
-    arcs_t, arcs_x, arc_traj, dropped = [], [], [], 0
-    file_index = {p: k for k, p in enumerate(paths)}
-    for path, kind, epochs, pos, vel, _ in segments:
-        seconds = (epochs - t0).to_value("s")
-        if kind == "inertial":
-            since = (epochs - rotation_t0).to_value("s")
-            r_body, p_body, _ = rotation.to_body(since, pos, vel)
-            q = units.to_length(r_body)
-            state = np.concatenate([q, units.to_velocity(p_body)], axis=1)
-        else:
-            state = units.state_to_canonical(pos, vel)
-        with np.errstate(invalid="ignore"):
-            largest = float(np.max(np.abs(state)))
-        if not largest <= MAX_STATE:  # also NaN from an overflow in the conversion
-            raise DatasetError(
-                f"{path}: a state of {largest:.3g} synchronous radii (canonical) is not tracking "
-                f"of body {name!r} (at most {MAX_STATE:g}); check the file's units (km, km/s) "
-                "and CENTER_NAME"
-            )
-        if np.any(np.diff(seconds) <= 0):
-            raise DatasetError(f"{path}: the epochs of a segment do not increase; fix its order")
-        for run in _runs(seconds, max_gap_s):
-            n = run.stop - run.start
-            if n < 2:  # a lone sample between gaps is no arc
-                dropped += n
-                continue
-            m = n if samples is None else int(samples)
-            for start in range(run.start, run.stop - m + 1, m):
-                arcs_t.append(units.to_time(seconds[start : start + m]))
-                arcs_x.append(state[start : start + m])
-                arc_traj.append(file_index[path])
-            dropped += n % m
-    if not arcs_t:
-        size = "2 or more" if samples is None else str(samples)
-        raise InputError(
-            f"no arc of {size} samples without a gap in the files (--max-gap "
-            f"{'1.5 median steps' if max_gap_s is None else f'{max_gap_s:g} s'}); "
-            + ("raise --max-gap" if samples is None else "lower --samples or raise --max-gap")
-        )
-    lengths = sorted({len(t) for t in arcs_t})
-    if len(lengths) > 1:
-        raise InputError(
-            f"the gap-free runs hold {lengths[0]} to {lengths[-1]} samples; pass --samples M "
-            "to cut them into arcs of M samples"
-        )
-    times = np.asarray(arcs_t)
-    states = np.asarray(arcs_x)
-    frames = sorted({seg[1] for seg in segments})
+    check_noise(sigma_r_m, sigma_v_m_s, noise_source)
     origin = origin_m if origin_m is not None else first.get("origin_m", (0.0, 0.0, 0.0))
-    if np.shape(origin) != (3,) or not np.all(np.isfinite(np.asarray(origin, dtype=float))):
-        raise InputError(f"--origin must be three finite numbers [m], got {origin!r}")
-    _check_positions(
-        states[..., :3],
-        [paths[k] for k in arc_traj],
+    arcs = tracks_to_arcs(
+        [seg[1] for seg in segments],
         body,
-        np.asarray(origin, dtype=float),
-        float(units.to_length(float(sigma_r_m))),
+        t0=t0,
+        samples=samples,
+        max_gap_s=max_gap_s,
+        rotation=rotation,
+        rotation_t0=rotation_t0,
+        sigma_r_m=sigma_r_m,
+        sigma_v_m_s=sigma_v_m_s,
+        origin_m=origin,
+        trajectory_kind=[_kind_of(m) for m in messages],
+        centre_hint="CENTER_NAME",
+        config={
+            "source": "ccsds-oem",
+            "files": [str(p) for p in paths],
+            "noise_from": noise_source,
+        },
     )
     if erfa_notes:
         warnings.warn(
@@ -407,84 +326,7 @@ def import_oem(
             HamgravWarning,
             stacklevel=2,
         )
-    config = {
-        "source": "ccsds-oem",
-        "files": [str(p) for p in paths],
-        "frames": frames,
-        "epoch_tdb": _iso(t0),
-        "rotation": rotation.describe() if rotation is not None and "inertial" in frames else None,
-        "samples_per_arc": int(times.shape[1]),
-        "max_gap_s": max_gap_s,
-        "dropped_samples": int(dropped),
-        "noise_from": noise_source,
-    }
-    return Arcs(
-        times=times,
-        states=states,
-        true_states=np.full_like(states, np.nan),
-        trajectory=np.asarray(arc_traj, dtype=int),
-        trajectory_kind=tuple(_kind_of(m) for m in messages),
-        trajectory_info={},
-        body_name=name,
-        gm_m3_s2=body.gm_m3_s2,
-        spin_period_s=body.spin_period_s,
-        body_origin_m=tuple(float(v) for v in origin),
-        sigma_r_m=float(sigma_r_m),
-        sigma_v_m_s=float(sigma_v_m_s),
-        truth=MasconSet(np.zeros((0, 3)), np.zeros(0)),
-        interior=NO_TRUTH,
-        interior_parameters={},
-        seed=0,
-        config=config,
-    )
-
-
-#: Closest sample beyond this many Brillouin radii: likely a unit error (metres read as km).
-FAR_RB = 100.0
-#: Samples deeper inside the shape than this fraction of R_B, or than 5 sigma_r of the
-#: tracking noise if more, are refused: the surface itself (a touchdown, an ejection point)
-#: is tracking, and its facets only approximate the body.
-INSIDE_TOLERANCE_RB = 0.01
-
-
-def _check_positions(q, arc_files, body, origin_m, sigma_r) -> None:
-    """Refuse samples inside the body's shape and warn when every sample is far from it:
-    both mean the file's units, CENTER_NAME or frame origin are not what it says. ``q``:
-    positions (n_arcs, m, 3), canonical, about the frame origin ``origin_m`` [m, mesh frame];
-    ``arc_files``: the file of each arc; ``sigma_r``: position noise, canonical."""
-    import trimesh
-
-    units = body.units
-    framed = replace(body, origin_m=tuple(float(v) for v in origin_m))  # the files' frame
-    reach = framed.brillouin_radius
-    points = np.asarray(q, dtype=float)
-    radius = np.linalg.norm(points, axis=-1)
-    near = np.argwhere(radius < reach)  # (arc, sample) of the points that can be inside
-    if len(near):
-        mesh = framed.mesh
-        candidates = points[near[:, 0], near[:, 1]]
-        inside = points_inside(np.asarray(mesh.triangles), candidates)
-        if np.any(inside):
-            depth = trimesh.proximity.signed_distance(mesh, candidates[inside])
-            tolerance = max(INSIDE_TOLERANCE_RB * reach, 5.0 * sigma_r)
-            inside[np.flatnonzero(inside)] = depth > tolerance
-        if np.any(inside):
-            first = near[np.flatnonzero(inside)[0]]
-            files = sorted({str(arc_files[a]) for a in near[inside][:, 0]})
-            count = int(inside.sum())
-            depth_m = float(np.linalg.norm(points[first[0], first[1]])) * units.length_m
-            raise DatasetError(
-                f"{', '.join(files)}: {count} sample{'s' if count > 1 else ''} inside the shape "
-                f"of {body.name!r} (one {depth_m:.4g} m from the frame origin); check the "
-                "file's units (km, km/s), CENTER_NAME and --origin"
-            )
-    if radius.min() > FAR_RB * reach:
-        warnings.warn(
-            f"the closest sample is {radius.min() / reach:.3g} Brillouin radii from "
-            f"{body.name!r}: check the files' units (km, km/s)",
-            HamgravWarning,
-            stacklevel=3,
-        )
+    return arcs
 
 
 def _kind_of(message) -> str:
