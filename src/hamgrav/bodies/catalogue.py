@@ -26,6 +26,7 @@ import trimesh
 from ..errors import BodyDataError, InputError
 from ..units import CanonicalUnits
 from .rotation import J2000_TDB, RotationModel
+from .shapes import read_shape
 
 __all__ = [
     "Body",
@@ -199,30 +200,13 @@ def read_catalogue(folder: Path) -> dict:
 
 
 def _load_mesh(path: Path) -> trimesh.Trimesh:
+    """A catalogue mesh [m], checked as every shape file is (see :func:`.shapes.check_mesh`)."""
     if not path.is_file():
         raise BodyDataError(
             f"mesh file not found: {path}; restore it or point HAMGRAV_BODIES "
             "at a complete body data folder"
         )
-    try:
-        mesh = trimesh.load(path, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types on bad input
-        raise BodyDataError(f"cannot read mesh {path}: {exc}; the file is malformed") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) < 4:
-        raise BodyDataError(f"mesh {path} holds no triangle surface; the file is malformed")
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    if not np.all(np.isfinite(vertices)):
-        raise BodyDataError(f"mesh {path} has non-finite vertex coordinates; the file is malformed")
-    if faces.min() < 0 or faces.max() >= len(vertices):
-        raise BodyDataError(f"mesh {path} has faces that refer to missing vertices; malformed")
-    with np.errstate(all="ignore"):  # a degenerate mesh is refused here, not warned about
-        closed = mesh.is_watertight and mesh.volume > 0
-    if not closed:
-        raise BodyDataError(
-            f"mesh {path} is not a closed, outward-wound surface (watertight="
-            f"{mesh.is_watertight}, volume={mesh.volume:.4g}); hamgrav needs a closed mesh"
-        )
-    return mesh
+    return read_shape(path, units="m")
 
 
 def list_bodies(folder: str | os.PathLike | None = None) -> list[str]:
