@@ -26,6 +26,8 @@ _EXPORTS = {
     "load_body": "bodies.catalogue",
     "list_bodies": "bodies.catalogue",
     "contact_binary": "bodies.catalogue",
+    "read_body_toml": "bodies.files",
+    "read_shape": "bodies.shapes",
     "Truth": "bodies.interiors",
     "build_truth": "bodies.interiors",
     "INTERIORS": "bodies.interiors",

@@ -301,7 +301,7 @@ def bodies() -> None:
 
 @_command(app)
 def body(
-    name: str,
+    name: Annotated[str, typer.Argument(help="A catalogue name, 'synthetic' or a body TOML file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     mascons: Annotated[int, typer.Option(help="Uniform-truth mascon count.")] = (
         DEFAULT_TRUTH_MASCONS
@@ -398,7 +398,10 @@ def simulate(
 @_command(app, "import-oem")
 def import_oem_command(
     files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="CCSDS OEM files.")],
-    body_name: Annotated[str, typer.Option("--body", help="The central body (catalogue name).")],
+    body_name: Annotated[
+        str,
+        typer.Option("--body", help="The central body (catalogue name or body TOML file)."),
+    ],
     output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],
     samples: Annotated[
         int | None,

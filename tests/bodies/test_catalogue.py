@@ -95,7 +95,7 @@ def test_missing_mesh_file(monkeypatch, tmp_path):
 def test_open_mesh_rejected(monkeypatch, tmp_path):
     one_triangle = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n"
     monkeypatch.setenv("HAMGRAV_BODIES", str(_fake_folder(tmp_path, GOOD_ENTRY, one_triangle)))
-    with pytest.raises(BodyDataError, match="mesh .*mesh.obj"):
+    with pytest.raises(BodyDataError, match="shape file .*rock/mesh.obj has 2 triangles"):
         load_body("rock")
 
 

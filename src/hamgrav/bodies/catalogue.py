@@ -7,7 +7,9 @@ the centre of mass of the body's truth interior (see :meth:`Body.recentred`).
 
 Catalogue bodies are read from the folder named by ``HAMGRAV_BODIES`` (default:
 ``../shared/bodies`` beside the repository root); synthetic bodies are generated here and need
-no data at all.
+no data at all; a user's own body comes from its shape file and constants
+(:meth:`Body.from_files`) or a body TOML naming them (:mod:`hamgrav.bodies.files`), whose path
+is accepted wherever a body's name is.
 """
 
 from __future__ import annotations
@@ -26,17 +28,21 @@ from ..core.arcs import BodyRecord, mesh_digest
 from ..errors import BodyDataError, InputError
 from ..units import CanonicalUnits
 from .rotation import J2000_TDB, RotationModel
+from .shapes import read_shape
 
 __all__ = [
     "Body",
     "BodyDataError",
     "G_SI",
     "SYNTHETIC_BODIES",
+    "body_file",
     "bodies_dir",
+    "check_body_name",
     "contact_binary",
     "list_bodies",
     "load_body",
     "read_catalogue",
+    "resolve_body_spec",
 ]
 
 #: Newtonian constant of gravitation [m^3 kg^-1 s^-2] (CODATA 2018).
@@ -74,6 +80,41 @@ class Body:
     rotation: RotationModel | None = None
     naif_id: int | None = None
     source: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_files(
+        cls,
+        mesh: str | os.PathLike,
+        *,
+        gm_m3_s2: float,
+        spin_period_s: float,
+        pole: tuple[float, float] | None = None,
+        prime_meridian_deg: float = 0.0,
+        rotation_epoch: str = J2000_TDB,
+        name: str | None = None,
+        units: str = "m",
+        fmt: str | None = None,
+        naif_id: int | None = None,
+        description: str = "",
+    ) -> Body:
+        """A body of the shape model file ``mesh`` [``units``: "m" or "km"], GM [m^3/s^2] and
+        spin period [s]; ``pole`` (right ascension, declination) [deg, ICRF] adds a rotation
+        model. See :func:`hamgrav.bodies.files.body_from_files`."""
+        from .files import body_from_files
+
+        return body_from_files(
+            mesh,
+            gm_m3_s2=gm_m3_s2,
+            spin_period_s=spin_period_s,
+            pole=pole,
+            prime_meridian_deg=prime_meridian_deg,
+            rotation_epoch=rotation_epoch,
+            name=name,
+            units=units,
+            fmt=fmt,
+            naif_id=naif_id,
+            description=description,
+        )
 
     @cached_property
     def mesh_sha256(self) -> str:
@@ -249,30 +290,13 @@ def read_catalogue(folder: Path) -> dict:
 
 
 def _load_mesh(path: Path) -> trimesh.Trimesh:
+    """A catalogue mesh [m], checked as every shape file is (see :func:`.shapes.check_mesh`)."""
     if not path.is_file():
         raise BodyDataError(
             f"mesh file not found: {path}; restore it or point HAMGRAV_BODIES "
             "at a complete body data folder"
         )
-    try:
-        mesh = trimesh.load(path, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types on bad input
-        raise BodyDataError(f"cannot read mesh {path}: {exc}; the file is malformed") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) < 4:
-        raise BodyDataError(f"mesh {path} holds no triangle surface; the file is malformed")
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    if not np.all(np.isfinite(vertices)):
-        raise BodyDataError(f"mesh {path} has non-finite vertex coordinates; the file is malformed")
-    if faces.min() < 0 or faces.max() >= len(vertices):
-        raise BodyDataError(f"mesh {path} has faces that refer to missing vertices; malformed")
-    with np.errstate(all="ignore"):  # a degenerate mesh is refused here, not warned about
-        closed = mesh.is_watertight and mesh.volume > 0
-    if not closed:
-        raise BodyDataError(
-            f"mesh {path} is not a closed, outward-wound surface (watertight="
-            f"{mesh.is_watertight}, volume={mesh.volume:.4g}); hamgrav needs a closed mesh"
-        )
-    return mesh
+    return read_shape(path, units="m")
 
 
 def list_bodies(folder: str | os.PathLike | None = None) -> list[str]:
@@ -294,29 +318,79 @@ def _catalogue_entry(name: str, folder: Path) -> dict:
     if key not in catalogue:
         raise BodyDataError(
             f"unknown body {name!r}; known: {', '.join(list_bodies(folder))} "
-            f"(catalogue {folder / 'catalogue.json'})"
+            f"(catalogue {folder / 'catalogue.json'}), or give a body TOML file (a path "
+            "ending in .toml)"
         )
     return catalogue[key]
 
 
-def check_body_name(name: str, folder: str | os.PathLike | None = None) -> None:
-    """Raise :class:`BodyDataError` unless ``name`` is a synthetic body or has an entry in the
-    catalogue of ``folder`` (default :func:`bodies_dir`): the cheap check made before a long
-    run, without reading the body's files."""
-    if name.strip().lower() not in SYNTHETIC_BODIES:
-        _catalogue_entry(name, Path(folder) if folder else bodies_dir())
+def body_file(spec: str | os.PathLike) -> Path | None:
+    """The body TOML file that ``spec`` names, or None when it is a body's name: a spec names
+    a file when it ends in ``.toml`` or holds a path separator (``./rock``, ``data/rock.cfg``).
+    A bare name is a synthetic or catalogue body's (an existing file of that name is read
+    only when no such body exists; see :func:`load_body`)."""
+    text = os.fspath(spec).strip()
+    if text.lower().endswith(".toml") or "/" in text or os.sep in text:
+        return Path(text).expanduser()
+    return None
+
+
+def resolve_body_spec(spec: str, base: str | os.PathLike) -> str:
+    """``spec`` with a relative body-file path made absolute from the folder ``base`` (where
+    the file naming it lives, e.g. a campaign TOML's folder); names are returned unchanged."""
+    path = body_file(spec)
+    if path is None or path.is_absolute():
+        return spec
+    return str((Path(base) / path).resolve())
+
+
+def check_body_name(name: str | os.PathLike, folder: str | os.PathLike | None = None) -> None:
+    """Raise :class:`BodyDataError` (or :class:`InputError`) unless ``name`` is a synthetic
+    body, has an entry in the catalogue of ``folder`` (default :func:`bodies_dir`) or names a
+    valid body TOML file: the check made before a long run. A catalogue entry's files are not
+    read; a body TOML is read whole, shape included (a few seconds at most), since its
+    errors are the user's to fix before anything runs."""
+    _body_spec(name, folder)
+
+
+def _body_spec(name: str | os.PathLike, folder) -> dict | Body | None:
+    """What ``name`` names: a body read from its TOML file, the catalogue entry (a dict), or
+    None for a synthetic body."""
+    from .files import read_body_toml
+
+    path = body_file(name)
+    if path is not None:
+        return read_body_toml(path)
+    name = os.fspath(name)
+    if name.strip().lower() in SYNTHETIC_BODIES:
+        return None
+    try:
+        return _catalogue_entry(name, Path(folder) if folder else bodies_dir())
+    except BodyDataError:
+        if Path(name).is_file():  # a bare file name, not a body's
+            return read_body_toml(name)
+        raise
 
 
 def load_body(
-    name: str, *, low_resolution: bool = False, folder: str | os.PathLike | None = None
+    name: str | os.PathLike,
+    *,
+    low_resolution: bool = False,
+    folder: str | os.PathLike | None = None,
 ) -> Body:
-    """Load a body by name: a synthetic one (see :data:`SYNTHETIC_BODIES`) or an entry of the
-    catalogue in ``folder`` (default :func:`bodies_dir`)."""
-    key = name.strip().lower()
-    if key in SYNTHETIC_BODIES:
+    """Load a body by name: a synthetic one (see :data:`SYNTHETIC_BODIES`), an entry of the
+    catalogue in ``folder`` (default :func:`bodies_dir`), or a body TOML file (a path ending in
+    ``.toml`` or holding a separator, see :func:`body_file` and
+    :func:`hamgrav.bodies.files.read_body_toml`; relative to the working folder). A body file
+    has one shape: ``low_resolution`` applies to catalogue bodies only."""
+    spec = _body_spec(name, folder)
+    if isinstance(spec, Body):
+        return spec
+    key = os.fspath(name).strip().lower()
+    if spec is None:
         return SYNTHETIC_BODIES[key]()
     folder = Path(folder) if folder else bodies_dir()
-    entry = _catalogue_entry(name, folder)
+    entry = spec
     try:
         gm = float(entry["gm_m3_s2"])
         period = float(entry["spin_period_s"])

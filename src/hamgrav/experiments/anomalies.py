@@ -54,7 +54,7 @@ PAPER_ANOMALIES = {
 class AnomaliesExperimentConfig(CampaignConfig):
     """The buried-anomaly campaign (Bennu, 16 orbits 1.08-1.7 R_B by default)."""
 
-    body: str = option("bennu", "Body: a catalogue name or 'synthetic'.")
+    body: str = option("bennu", "Body: a catalogue name, 'synthetic' or a body TOML file.")
     interior: str = option("anomalies", "Truth interior (see hamgrav.bodies.interiors).")
     frame: str = option(
         "shape",

@@ -63,7 +63,7 @@ def min_radius_rb_option(
 class CampaignConfig(ExperimentConfig):
     """The tracking campaign of an experiment (the paper's 112-arc campaign by default)."""
 
-    body: str = option("itokawa", "Body: a catalogue name or 'synthetic'.")
+    body: str = option("itokawa", "Body: a catalogue name, 'synthetic' or a body TOML file.")
     interior: str = option("head-tail", f"Truth interior: {' | '.join(INTERIORS)}.")
     n_mascons: int = n_mascons_option()
     orbits: int = orbits_option()

@@ -112,7 +112,7 @@ SAMPLE_FLOOR_RB = 0.96
 class DeepExperimentConfig(CampaignConfig):
     """The deep-region campaign: 67P, 18 orbits in 6 stages, the network and SH 4/8/12."""
 
-    body: str = option("67p", "Body: a catalogue name or 'synthetic'.")
+    body: str = option("67p", "Body: a catalogue name, 'synthetic' or a body TOML file.")
     interior: str = option("uniform", "Truth interior (the paper's 67P truth is homogeneous).")
     n_mascons: int = n_mascons_option(240, "Truth mascons (the paper's 67P truth has 240).")
     orbits: int = orbits_option(

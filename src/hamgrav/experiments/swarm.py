@@ -84,7 +84,7 @@ PAPER_NETWORK = "network-adam"
 class SwarmExperimentConfig(ExperimentConfig):
     """The particle-swarm experiment (the paper's Bennu campaign by default)."""
 
-    body: str = option("bennu", "Body: a catalogue name or 'synthetic'.")
+    body: str = option("bennu", "Body: a catalogue name, 'synthetic' or a body TOML file.")
     interior: str = option("uniform", f"Truth interior: {' | '.join(INTERIORS)}.")
     n_mascons: int = n_mascons_option()
     particles: int = option(28, "Particles ejected and tracked.", at_least=1)

@@ -2,7 +2,8 @@
 
 Example::
 
-    body = "itokawa"          # a catalogue name or "synthetic"
+    body = "itokawa"          # a catalogue name, "synthetic" or a body TOML file (relative to
+                              # this file's folder; see hamgrav.bodies.files)
     interior = "head-tail"    # uniform | head-tail | void | anomalies
     n_mascons = 600           # truth mascons
     seed = 1
@@ -29,7 +30,7 @@ import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from ..bodies.catalogue import load_body
+from ..bodies.catalogue import load_body, resolve_body_spec
 from ..bodies.interiors import (
     DEFAULT_TRUTH_MASCONS,
     INTERIORS,
@@ -81,7 +82,7 @@ class Campaign:
         if unknown:
             fail(f"unknown key(s) {sorted(unknown)}; allowed: {sorted(_TOP_KEYS)}")
         if not isinstance(data.get("body"), str) or not data["body"].strip():
-            fail("'body' is required (a catalogue name or 'synthetic')")
+            fail("'body' is required (a catalogue name, 'synthetic' or a body TOML file)")
         interior = data.get("interior", "uniform")
         if not isinstance(interior, str) or interior not in INTERIORS:
             fail(f"interior {interior!r} is not one of {', '.join(INTERIORS)}")
@@ -192,11 +193,15 @@ def _is_pair(value) -> bool:
 
 
 def load_campaign(path: str | Path) -> Campaign:
-    """Read a campaign TOML file (see the module docstring)."""
+    """Read a campaign TOML file (see the module docstring). A body TOML path in it is
+    relative to the campaign file's folder: the campaign holds it absolute, so that it names
+    the same file from anywhere (and in the arcs' record of the campaign)."""
     try:
         data = read_toml(path)
     except InputError as exc:
         raise CampaignError(f"campaign {exc}") from None
+    if isinstance(data.get("body"), str):
+        data["body"] = resolve_body_spec(data["body"], Path(path).parent)
     return Campaign.from_dict(data, source=str(path))
 
 
