@@ -39,6 +39,7 @@ __all__ = [
     "bodies_dir",
     "check_body_name",
     "contact_binary",
+    "contact_binary_radius",
     "list_bodies",
     "load_body",
     "read_catalogue",
@@ -454,6 +455,29 @@ def _ray_exit_ellipsoid(directions: np.ndarray, centre, semi_axes) -> np.ndarray
     return (b + np.sqrt(b * b - a * cc)) / a
 
 
+def contact_binary_radius(
+    directions: np.ndarray, *, length_m: float = 560.0, head_ratio: float = 0.7
+) -> np.ndarray:
+    """Distance [m] from the contact point to the surface of :func:`contact_binary`'s shape
+    along unit ``directions`` (n, 3): a smooth maximum of two ellipsoidal lobes' radial
+    functions, so the shape is star-shaped about the contact point. ``length_m`` is the
+    overall length along x, ``head_ratio`` the head lobe's size relative to the main lobe.
+    Sample it on any grid (an icosphere, an ICQ cube grid) to mesh the same body."""
+    # Lobe geometry in units of the main lobe's long semi-axis; lobes overlap around x = 0.
+    main_axes = np.array([1.0, 0.68, 0.56])
+    head_axes = head_ratio * np.array([1.0, 0.78, 0.66])
+    overlap = 0.18 * head_ratio
+    main_centre = np.array([-(1.0 - overlap), 0.0, 0.0])
+    head_centre = np.array([head_axes[0] - overlap, 0.0, 0.02])
+    u = np.asarray(directions, dtype=float)
+    r1 = _ray_exit_ellipsoid(u, main_centre, main_axes)
+    r2 = _ray_exit_ellipsoid(u, head_centre, head_axes)
+    k = 12.0  # smooth-maximum sharpness: a rounded neck rather than a crease
+    r = (r1**k + r2**k) ** (1.0 / k)
+    extent = (main_centre[0] - main_axes[0], head_centre[0] + head_axes[0])
+    return r * (length_m / (extent[1] - extent[0]))
+
+
 def contact_binary(
     *,
     name: str = "synthetic",
@@ -475,21 +499,10 @@ def contact_binary(
             "contact_binary needs length_m > 0, 0.2 <= head_ratio <= 1, density_kg_m3 > 0 and "
             "spin_period_s > 0"
         )
-    # Lobe geometry in units of the main lobe's long semi-axis; lobes overlap around x = 0.
-    main_axes = np.array([1.0, 0.68, 0.56])
-    head_axes = head_ratio * np.array([1.0, 0.78, 0.66])
-    overlap = 0.18 * head_ratio
-    main_centre = np.array([-(1.0 - overlap), 0.0, 0.0])
-    head_centre = np.array([head_axes[0] - overlap, 0.0, 0.02])
     sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
     u = np.asarray(sphere.vertices) / np.linalg.norm(sphere.vertices, axis=1, keepdims=True)
-    r1 = _ray_exit_ellipsoid(u, main_centre, main_axes)
-    r2 = _ray_exit_ellipsoid(u, head_centre, head_axes)
-    k = 12.0  # smooth-maximum sharpness: a rounded neck rather than a crease
-    r = (r1**k + r2**k) ** (1.0 / k)
-    extent = (main_centre[0] - main_axes[0], head_centre[0] + head_axes[0])
-    scale = length_m / (extent[1] - extent[0])
-    vertices = u * (r * scale)[:, None]
+    r = contact_binary_radius(u, length_m=length_m, head_ratio=head_ratio)
+    vertices = u * r[:, None]
     mesh = trimesh.Trimesh(vertices, np.asarray(sphere.faces), process=False)
     mesh.apply_translation(-np.asarray(mesh.center_mass))
     gm = G_SI * density_kg_m3 * float(mesh.volume)
