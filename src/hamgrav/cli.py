@@ -497,7 +497,8 @@ def import_spk_command(
         list[str],
         typer.Option(
             help="Spacecraft NAIF ID or name, one trajectory each (repeat for several; "
-            "hamgrav's own SPKs: -1000, -1001, ...)."
+            "hamgrav's own SPKs: -1000, -1001, ...), or 'all': every target the SPKs give "
+            "relative to the body."
         ),
     ],
     output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],

@@ -51,6 +51,13 @@ def test_round_trip_of_own_spk(small_arcs, synthetic, written, tmp_path):
     # targets by hamgrav's names, and through the arcs file
     again = import_spk([written], synthetic, ["orbit-0", "orbit-1", "orbit-2"])
     assert_same_arcs(load_arcs(save_arcs(again, tmp_path / "arcs.h5")), small_arcs)
+    # every target about the body, in hamgrav's order
+    assert_same_arcs(import_spk([written], synthetic, "all"), small_arcs)
+    with pytest.raises(InputError, match="give it alone"):
+        import_spk([written], synthetic, ["all", -1000])
+    other = replace(synthetic, naif_id=2025143)  # another centre: no target about it
+    with pytest.raises(InputError, match="no trajectory relative to body"):
+        import_spk([written], other, "all")
     # one target alone: its arcs
     one = import_spk([written], synthetic, [-1001])
     mine = small_arcs.trajectory == 1

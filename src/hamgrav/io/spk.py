@@ -70,12 +70,14 @@ from .tracks import (
 )
 
 __all__ = [
+    "ALL_TARGETS",
     "DEFAULT_CENTRE",
     "SpkStates",
     "TARGET_BASE",
     "default_rotation",
     "import_spk",
     "read_spk",
+    "targets_about",
     "write_spk",
 ]
 
@@ -733,6 +735,32 @@ def _iso_et(et: float) -> str:
     return str(t.isot)
 
 
+#: The ``--target`` that takes every target of the SPKs whose segments are relative to the body.
+ALL_TARGETS = "all"
+
+
+def targets_about(kernels, body: Body, centre: int | None = None) -> list[int]:
+    """NAIF IDs of every target whose SPK segments among ``kernels`` are given relative to
+    ``body`` (its NAIF ID, or ``centre``, or hamgrav's comment), sorted by decreasing ID
+    (hamgrav's own SPKs: -1000, -1001, ...); :class:`InputError` naming the kernels when
+    there is none."""
+    paths = _kernel_paths(kernels)
+    spks = _spks(paths)
+    records = [_comments(p) for p in spks]
+    body_code, body_source = _centre_id(body, centre, records)
+    found = sorted(
+        {seg.target for p in spks for seg in _segments(p) if seg.centre == body_code},
+        reverse=True,
+    )
+    if not found:
+        raise InputError(
+            f"the SPKs {', '.join(map(str, spks))} hold no trajectory relative to body "
+            f"{body.name!r} ({body_source}: {_describe(body_code)}); give --target and the "
+            "kernels that relate it to the body, or the matching --body (or --center)"
+        )
+    return found
+
+
 def import_spk(
     kernels,
     body: Body,
@@ -783,6 +811,10 @@ def import_spk(
     if not targets:
         raise InputError("give at least one --target (the spacecraft's NAIF ID or name)")
     paths = _kernel_paths(kernels)
+    if any(str(t).strip().lower() == ALL_TARGETS for t in targets):
+        if len(targets) > 1:
+            raise InputError(f"--target {ALL_TARGETS} takes every target; give it alone")
+        targets = targets_about(paths, body, centre)
     with _loaded(paths):
         read = [
             _read_target(paths, body, t, start, stop, step_s, rotation, centre) for t in targets
