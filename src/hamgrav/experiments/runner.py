@@ -130,6 +130,7 @@ def _register_all() -> None:
         deep,
         descent,
         interiors,
+        own_body,
         solvers,
         swarm,
         uncertainty,
