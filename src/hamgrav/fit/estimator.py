@@ -687,8 +687,8 @@ class GravityEstimator:
                 warnings.warn(
                     f"the fit looks overfit: its cost per held-out arc is "
                     f"{self.diagnostics_['held_out_to_training']:.3g}x its cost per training arc "
-                    f"(above {OVERFIT_FACTOR:g}x); choose the model from the arcs (kaula or "
-                    "degree 'cv'/'auto'), or use a smaller model",
+                    f"(above {OVERFIT_FACTOR:g}x); choose its settings from the arcs (kaula, "
+                    "harmonic 'cv', degree 'auto') or use a smaller model",
                     HamgravWarning,
                     stacklevel=2,
                 )
