@@ -235,3 +235,23 @@ def test_choices_are_checked(small_arcs, synthetic_truth):
         ).choices()
     with pytest.raises(InputError, match="one integer degree"):
         GravityEstimator("sh", degree="auto", body=body).build_model(small_arcs)
+
+
+def test_cross_validation_on_a_dask_client_equals_builtin_map(point_mass_arcs, synthetic_truth):
+    import pickle
+
+    from distributed import Client
+
+    from hamgrav.fit.estimator import _cv_score
+
+    settings = {"term": "sh", "degree": (2, 3), "folds": 3, "body": synthetic_truth.body}
+    serial = GravityEstimator(**settings).fit(point_mass_arcs)
+    # a work unit is plain data: it survives pickling (Dask workers in other processes)
+    unit = pickle.loads(pickle.dumps(_cv_score))
+    assert unit is _cv_score
+    pickle.dumps((GravityEstimator(**settings).get_params(), point_mass_arcs))
+    with Client(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=":0") as c:
+        mapper = lambda f, xs: c.gather(c.map(f, list(xs)))  # noqa: E731
+        mapped = GravityEstimator(**settings, mapper=mapper).fit(point_mass_arcs)
+    np.testing.assert_array_equal(mapped.selection_[0].unit_costs, serial.selection_[0].unit_costs)
+    np.testing.assert_array_equal(mapped.params_, serial.params_)
