@@ -429,7 +429,7 @@ def test_noise_free_arcs_have_no_formal_errors(files, small_arcs, tmp_path):
         (["--hidden", "0"], "--hidden must be an integer >= 1, got 0"),
         (["--learning-rate", "-0.1"], "--learning-rate must be a finite number > 0"),
         (["--learning-rate", "inf"], "--learning-rate must be a finite number > 0, got inf"),
-        (["--model", "sh:4", "--kaula", "-1e-6"], "--kaula (one weight ALPHA >= 0, or 'scan')"),
+        (["--model", "sh:4", "--kaula", "-1e-6"], "--kaula (one weight ALPHA >= 0, or 'cv')"),
         (["--model", "sh:4", "--kaula", "nan"], "must be a finite number >= 0, got nan"),
         (["--seed", "-1"], "--seed must be an integer >= 0"),
         (["--solver", "sgd"], "--solver must be 'adam' or 'lm'"),
@@ -505,7 +505,8 @@ def test_more_parameters_than_observations_warns(small_arcs, tmp_path, monkeypat
     args = ["fit", str(few), "--model", "network", "--steps", "1", "-o", str(tmp_path / "m.h5")]
     # one arc, too few to hold one out: 39 samples (after the anchor) x 6 = 234 scalars
     small = runner.invoke(app, [*args, "--hidden", "8"])  # 49 parameters
-    assert small.exit_code == 130 and "warning" not in small.output
+    assert small.exit_code == 130 and "observed scalars" not in small.output
+    assert "warning: only 1 arc: none held out" in " ".join(small.output.split())
     large = runner.invoke(app, [*args, "--hidden", "64"])  # 321 parameters
     assert large.exit_code == 130
     assert "warning: 321 parameters but only 234 observed scalars in the 1 training arcs" in (

@@ -217,18 +217,23 @@ def test_fit_weighted(arcs_file, tmp_path):
     assert b["initial_cost"] > 1e4 * a["initial_cost"]
 
 
-def test_fit_kaula_scan(arcs_file, tmp_path):
+def test_fit_kaula_cv_and_the_truth_scan_refused(arcs_file, tmp_path):
     from hamgrav.io.models import load_model
 
     out = tmp_path / "kaula.h5"
-    result = runner.invoke(
-        app, ["fit", str(arcs_file), "--model", "sh:3", "--kaula", "scan", "-o", str(out)]
-    )
+    args = ["fit", str(arcs_file), "--model", "sh:3", "-o", str(out)]
+    result = runner.invoke(app, [*args, "--kaula", "cv", "--folds", "3"])
     assert result.exit_code == 0, result.output
-    solver = load_model(out).solver
-    alphas = [a for a, _ in solver["kaula_scan"]]
-    assert alphas == [1e-8, 1e-7, 1e-6, 1e-5, 1e-4]
-    assert solver["kaula_alpha"] == min(solver["kaula_scan"], key=lambda s: s[1])[0]
+    (table,) = load_model(out).solver["selection"]
+    assert table["name"] == "kaula_alpha" and table["folds"] == 3
+    assert table["candidates"] == [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 0.0]
+    assert load_model(out).solver["kaula_alpha"] == table["chosen"]
+    # the table is summarised: one line per candidate, the kept one marked
+    assert "kaula_alpha by 3-fold cross-validation" in result.output
+    assert result.output.count("<- kept") == 1
+    # the truth scan is an experiments' protocol: the CLI names the option that replaces it
+    scan = runner.invoke(app, [*args, "--kaula", "scan"])
+    assert scan.exit_code == 2 and "choose it from the arcs with --kaula cv" in scan.output
 
 
 def test_fit_resume_after_interrupt(arcs_file, tmp_path, monkeypatch):
@@ -303,6 +308,46 @@ def test_fit_strict_passes_a_fit_that_learns(small_arcs, tmp_path):
     assert "does not clearly improve" not in result.output
 
 
+def test_fit_strict_fails_an_overfit_fit(point_mass_arcs, tmp_path):
+    """The issue's failure in miniature: SH 8 on 12 arcs converges on its training arcs; the
+    arcs held out by default show it, in one line each, and --strict fails it."""
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.models import load_model
+
+    arcs = save_arcs(point_mass_arcs, tmp_path / "pm.h5")
+    out = tmp_path / "m.h5"
+    result = runner.invoke(app, ["fit", str(arcs), "--model", "sh:8", "-o", str(out), "--strict"])
+    text = " ".join(result.output.split())
+    assert result.exit_code == 3
+    assert "cost on the validation arcs" in text and "does not clearly improve" in text
+    assert text.count("looks overfit") == 1 and "above 10x" in text
+    diagnostics = load_model(out).solver["diagnostics"]
+    assert diagnostics["overfit"] and diagnostics["held_out_to_training"] > 10
+    # chosen from the arcs, the degree is the lowest and the fit passes the overfit check
+    auto = runner.invoke(app, ["fit", str(arcs), "--model", "sh:auto:8", "-o", str(out)])
+    assert auto.exit_code == 0 and "looks overfit" not in auto.output
+    assert load_model(out).model.learnable.degree == 2
+
+
+def test_fit_harmonic_cv(arcs_file, tmp_path):
+    from hamgrav.io.models import load_model
+
+    out = tmp_path / "n.h5"
+    args = ["fit", str(arcs_file), "--hidden", "4", "--solver", "lm", "-o", str(out)]
+    result = runner.invoke(app, [*args, "--harmonic", "cv", "--folds", "2"])
+    assert result.exit_code == 0, result.output
+    (table,) = load_model(out).solver["selection"]
+    assert table["name"] == "harmonic" and table["candidates"] == [1e-3, 1e-4, 1e-5, 1e-6]
+    assert load_model(out).solver["harmonic"]["weight"] == table["chosen"]
+    assert "harmonic by 2-fold cross-validation" in result.output
+    refused = runner.invoke(app, [*args, "--harmonic", "cv", "--solver", "adam"])
+    assert refused.exit_code == 2 and "--harmonic applies to networks fitted by LM" in (
+        " ".join(refused.output.split())
+    )
+    bad = runner.invoke(app, [*args, "--model", "sh:auto:1"])
+    assert bad.exit_code == 2 and "'sh:auto' / 'sh:auto:L'" in bad.output
+
+
 def test_fit_strict_follows_the_diagnostics_not_the_outcome(point_mass_arcs, tmp_path, monkeypatch):
     """A fit that ends for another reason than "no improvement" (here: damping saturated)
     but does not beat no correction is still refused by --strict."""
@@ -345,8 +390,11 @@ def test_fit_init_continues_a_model_as_a_stage(small_arcs, tmp_path):
     assert [s["stage"] for s in stages] == [0, 1]
     assert [s["n_arcs"] for s in stages] == [5, 9]
     assert stages[1]["warm_started"] and stages[0]["arcs_file"] == str(first)
-    # each stage says what it left of no correction's cost (SH: no hold-out)
-    assert all(s["checked_on"] == "training arcs" and s["relative_cost"] < 1 for s in stages)
+    # each stage says what it left of no correction's cost: 5 arcs are too few to hold out
+    # (checked on the training arcs), 9 hold out 2
+    assert [s["checked_on"] for s in stages] == ["training arcs", "validation arcs"]
+    assert [s["n_validation"] for s in stages] == [0, 2]
+    assert all(s["relative_cost"] < 1 for s in stages)
     other = runner.invoke(
         app, ["fit", str(everything), "--model", "sh:2", "--init", str(stage1), "-o", str(stage2)]
     )

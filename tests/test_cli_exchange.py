@@ -143,15 +143,23 @@ def test_export_refusals_are_one_line(imported, tmp_path):
     )
 
 
-def test_kaula_scan_needs_a_truth(imported, tmp_path):
-    result = runner.invoke(
-        app,
-        ["fit", str(imported), "--model", "sh:3", "--kaula", "scan", "-o", str(tmp_path / "m.h5")],
-    )
-    assert result.exit_code == 2
-    assert "these arcs have none (imported tracking); give --kaula ALPHA" in " ".join(
-        result.output.split()
-    )
+def test_imported_arcs_choose_the_model_without_a_truth(imported, tmp_path):
+    """Imported tracking has no truth: --kaula cv and --model sh:auto choose from the arcs;
+    the truth scan is refused, naming the option that replaces it."""
+    from hamgrav.io.models import load_model
+
+    assert not load_arcs(imported).has_truth
+    model = tmp_path / "m.h5"
+    args = ["fit", str(imported), "-o", str(model), "--folds", "3"]
+    result = runner.invoke(app, [*args, "--model", "sh:auto:3", "--kaula", "cv"])
+    assert result.exit_code == 0, result.output
+    degree, alpha = load_model(model).solver["selection"]
+    assert degree["candidates"] == [2, 3] and degree["chosen"] in (2, 3)
+    assert alpha["candidates"][0] == 1e-4 and alpha["candidates"][-1] == 0.0
+    assert load_model(model).model.learnable.degree == degree["chosen"]
+    refused = runner.invoke(app, [*args, "--model", "sh:3", "--kaula", "scan"])
+    assert refused.exit_code == 2
+    assert "choose it from the arcs with --kaula cv" in " ".join(refused.output.split())
 
 
 def test_evaluate_sigma(imported, arcs_with_truth, tmp_path):

@@ -648,10 +648,13 @@ FIT_OPTIONS = {
         _valid_number(t, 1, integer=True, lists=True)
         and max(int(w) for w in t.split(",") if w.strip()) <= 1024
     ),
-    "--kaula": lambda t: t == "scan" or _valid_number(t, 0.0, integer=False),
+    "--kaula": lambda t: t == "cv" or _valid_number(t, 0.0, integer=False),
+    "--harmonic": lambda t: t == "cv" or _valid_number(t, 0.0, integer=False),
+    "--folds": lambda t: _valid_number(t, 2, integer=True),
     "--model": lambda t: (
-        t in ("network", "network-best")
+        t in ("network", "network-best", "sh:auto")
         or (t.startswith("sh:") and t[3:].isdecimal() and 2 <= int(t[3:]) <= 40)
+        or (t.startswith("sh:auto:") and t[8:].isdecimal() and 3 <= int(t[8:]) <= 40)
     ),
 }
 
@@ -659,7 +662,12 @@ FIT_OPTIONS = {
 @settings(FUZZ, max_examples=500)
 @given(
     option=st.sampled_from(sorted(FIT_OPTIONS)),
-    value=st.one_of(NUMBER_TEXT, st.sampled_from(["sh:4", "sh:1", "sh:x", "network", "scan"])),
+    value=st.one_of(
+        NUMBER_TEXT,
+        st.sampled_from(
+            ["sh:4", "sh:1", "sh:x", "network", "scan", "cv", "sh:auto", "sh:auto:8", "sh:auto:2"]
+        ),
+    ),
 )
 def test_fuzz_fit_options(tmp_path, option, value):
     """Every option value is either refused naming the option, or accepted: then the next

@@ -605,16 +605,23 @@ def import_spk_command(
 
 
 def _model_option(model: str) -> dict:
-    """Estimator settings of a --model value: a named configuration or sh:L."""
-    from .fit.estimator import PRESETS, preset
+    """Estimator settings of a --model value: a named configuration, sh:L, or sh:auto /
+    sh:auto:L (the degree chosen by cross-validation among 2..12 or 2..L)."""
+    from .fit.estimator import AUTO_DEGREES, PRESETS, preset
 
     if model in PRESETS:
         return preset(model)
     if model.startswith("sh:") and model[3:].isdecimal() and 2 <= int(model[3:]) <= MAX_SH_DEGREE:
         return {"term": "sh", "degree": int(model[3:])}
+    if model == "sh:auto":
+        return {"term": "sh", "degree": AUTO_DEGREES}
+    top = model[len("sh:auto:") :]
+    if model.startswith("sh:auto:") and top.isdecimal() and 3 <= int(top) <= MAX_SH_DEGREE:
+        return {"term": "sh", "degree": tuple(range(2, int(top) + 1))}
     raise InputError(
-        f"--model must be one of {', '.join(PRESETS)} or 'sh:L' with 2 <= L <= "
-        f"{MAX_SH_DEGREE} (e.g. sh:8), got {model!r}"
+        f"--model must be one of {', '.join(PRESETS)}, 'sh:L' with 2 <= L <= {MAX_SH_DEGREE} "
+        f"(e.g. sh:8), or 'sh:auto' / 'sh:auto:L' (degree chosen from the arcs, 2..12 or "
+        f"2..L), got {model!r}"
     )
 
 
@@ -644,8 +651,9 @@ def fit(
         str,
         typer.Option(
             help="'network-best' (the mean of 3 networks fitted by LM with a harmonic penalty: "
-            "recommended), 'network' "
-            "(the paper's Adam protocol) or 'sh:L'."
+            "recommended), 'network' (the paper's Adam protocol), 'sh:L', or 'sh:auto' / "
+            "'sh:auto:L' (SH of degree chosen from the arcs by cross-validation among 2..12 / "
+            "2..L)."
         ),
     ] = "network-best",
     hidden: Annotated[str, typer.Option(help="Hidden layer sizes of the network.")] = "24,24",
@@ -669,8 +677,27 @@ def fit(
     ] = False,
     kaula: Annotated[
         str | None,
-        typer.Option(help="Kaula weight ALPHA, or 'scan' (1e-8..1e-4, best 1.05 R_B field error)."),
+        typer.Option(
+            help="SH: Kaula weight ALPHA, or 'cv' (chosen from the arcs by cross-validation "
+            "among 1e-4..1e-8 and 0; no truth needed)."
+        ),
     ] = None,
+    harmonic: Annotated[
+        str | None,
+        typer.Option(
+            help="Network fitted by LM: weight of the harmonic penalty (0: off; default: the "
+            "model's own, 1e-5 for network-best), or 'cv' (chosen from the arcs by "
+            "cross-validation among 1e-3..1e-6)."
+        ),
+    ] = None,
+    folds: Annotated[
+        int,
+        typer.Option(
+            help="Folds of the cross-validation of 'cv' / 'sh:auto' (whole arcs; the "
+            "one-standard-error rule keeps the simplest candidate within one standard error "
+            "of the lowest held-out cost)."
+        ),
+    ] = 5,
     init: Annotated[
         Path | None,
         typer.Option(
@@ -690,7 +717,10 @@ def fit(
     ] = False,
     strict: Annotated[
         bool,
-        typer.Option(help="Exit with status 3 when the fit does not clearly beat no correction."),
+        typer.Option(
+            help="Exit with status 3 when the fit does not clearly beat no correction on its "
+            "held-out arcs, or looks overfit (held-out cost per arc over 10x the training's)."
+        ),
     ] = False,
     body: BodyOption = None,
 ) -> None:
@@ -699,7 +729,8 @@ def fit(
     The model file is written in every case, with the fit's outcome and diagnostics. An
     interrupted fit keeps a checkpoint beside it (OUTPUT.checkpoint.npz): --resume continues
     it, and a fresh fit refuses to start over it."""
-    from .fit.estimator import GravityEstimator, has_noise, truth_shell_metric
+    from .fit.diagnostics import OVERFIT_FACTOR
+    from .fit.estimator import GravityEstimator, has_noise
     from .io.arcs import load_arcs
     from .io.models import (
         checkpoint_path_for,
@@ -719,18 +750,15 @@ def fit(
         raise InputError(f"--prior must be 'shape', got {prior!r}")
     if solver not in (None, "adam", "lm"):
         raise InputError(f"--solver must be 'adam' or 'lm', got {solver!r}")
-    kaula_value: float | str | None = None
-    if kaula is not None:
-        if kaula == "scan":
-            kaula_value = "scan"
-        else:
-            name = "--kaula (one weight ALPHA >= 0, or 'scan')"
-            values = _floats(kaula, name, 0.0)
-            if len(values) != 1:
-                raise InputError(f"{name} takes one value, got {kaula!r}")
-            kaula_value = values[0]
-        if term != "sh":
-            raise InputError("--kaula applies to spherical-harmonics models (--model sh:L)")
+    kaula_value = _weight_or_cv(kaula, "--kaula", "ALPHA")
+    if kaula_value is not None and term != "sh":
+        raise InputError("--kaula applies to spherical-harmonics models (--model sh:L)")
+    harmonic_value = _weight_or_cv(harmonic, "--harmonic", "W")
+    if harmonic_value is not None and (term != "network" or solver == "adam"):
+        raise InputError(
+            "--harmonic applies to networks fitted by LM (--model network-best, or --solver lm)"
+        )
+    _number(folds, "--folds", 2, integer=True)
     _number(steps, "--steps", 1, integer=True)
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _number(seed, "--seed", 0, integer=True)
@@ -753,6 +781,8 @@ def fit(
             settings["harmonic"] = None
     if term == "network":
         settings = {**settings, "hidden": hidden_sizes}
+    if harmonic_value is not None:
+        settings["harmonic"] = harmonic_value or None
     settings |= {"adam_steps": steps, "learning_rate": learning_rate}
     if weighted and not has_noise(arcs):
         raise InputError(
@@ -764,11 +794,13 @@ def fit(
         prior=prior,
         weighted=weighted,
         kaula=kaula_value,
-        kaula_metric=truth_shell_metric(arcs, body_obj) if kaula_value == "scan" else None,
         seed=seed,
         body=body_obj,
+        folds=folds,
     )
     theta0, resume_state, stages, init_digest = None, None, [], None
+    if init is not None and "degree" in estimator.choices():
+        raise InputError("--init continues a model of one degree: give --model sh:L, not sh:auto")
     if init is not None:
         structure = estimator.build_model(arcs)[0].key()
         try:
@@ -792,6 +824,8 @@ def fit(
         "prior": prior,
         "weighted": weighted,
         "kaula": kaula_value,
+        "harmonic": harmonic_value,
+        "folds": folds,
         "seed": seed,
         "init_params_sha256": init_digest,
         "solver": run_solver.name,
@@ -809,14 +843,17 @@ def fit(
                 text = " ".join(f"{k} {v:.3e}" for k, v in record.items() if isinstance(v, float))
                 progress.update(task, completed=it, description=f"fitting [{text}]")
 
-            estimator.fit(
-                arcs,
-                init=theta0,
-                warm=init is not None,
-                callback=on_iteration,
-                checkpoint=lambda th, st: save_checkpoint(ckpt, th, st, identity),
-                resume=resume_state,
-            )
+            with warnings.catch_warnings():
+                # said below, after the fit's summary, in the command's words
+                warnings.filterwarnings("ignore", message="the fit looks overfit")
+                estimator.fit(
+                    arcs,
+                    init=theta0,
+                    warm=init is not None,
+                    callback=on_iteration,
+                    checkpoint=lambda th, st: save_checkpoint(ckpt, th, st, identity),
+                    resume=resume_state,
+                )
     except KeyboardInterrupt:
         if ckpt.exists():
             err.print(
@@ -850,15 +887,48 @@ def fit(
         f"no correction; {diag['constrained_parameters']} of {diag['n_params']} parameter "
         "directions constrained by the arcs"
     )
+    for selection in getattr(estimator, "selection_", ()):
+        for line in selection.lines():
+            console.print(line, highlight=False)
+    failed = False
     if not diag["improved"]:
         err.print(
             "[bold yellow]warning:[/] the fit does not clearly improve on no correction "
-            f"(cost ratio {diag['relative_cost']:.3g}); do not use this model",
+            f"(cost ratio {diag['relative_cost']:.3g} on the {diag['checked_on']}); do not use "
+            "this model",
             highlight=False,
             soft_wrap=True,
         )
-        if strict:
-            raise typer.Exit(code=3)
+        failed = True
+    if diag.get("overfit"):
+        err.print(
+            "[bold yellow]warning:[/] the fit looks overfit: a held-out arc costs "
+            f"{diag['held_out_to_training']:.3g}x a training arc (above {OVERFIT_FACTOR:g}x); "
+            "choose its settings from the arcs (--kaula cv, --harmonic cv, --model sh:auto) or "
+            "use a smaller model",
+            highlight=False,
+            soft_wrap=True,
+        )
+        failed = True
+    if failed and strict:
+        raise typer.Exit(code=3)
+
+
+def _weight_or_cv(value: str | None, name: str, metavar: str) -> float | str | None:
+    """A --kaula / --harmonic value: None, one weight >= 0, or "cv" (refusing the truth
+    scan, which needs a truth: an experiments' option)."""
+    if value is None or value == "cv":
+        return value
+    if value == "scan":
+        raise InputError(
+            f"{name} scan scored each weight by the field error against the truth (an "
+            f"experiments' protocol); choose it from the arcs with {name} cv"
+        )
+    label = f"{name} (one weight {metavar} >= 0, or 'cv')"
+    values = _floats(value, label, 0.0)
+    if len(values) != 1:
+        raise InputError(f"{label} takes one value, got {value!r}")
+    return values[0]
 
 
 def _check_body_model(arcs, fitted, source, model: str, fix: str) -> None:

@@ -281,6 +281,27 @@ def test_anomalies_tiny(tmp_path):
     assert (out / "maps.png").stat().st_size > 1000
 
 
+def test_anomalies_tiny_cv_rows(tmp_path):
+    """--cv-sh adds SH rows chosen from the arcs alone; the other rows are those without."""
+    out = tmp_path / "anomalies"
+    args = [
+        "experiment", "anomalies", *TINY_CAMPAIGN, "--interior", "anomalies",
+        "--arcs-per-orbit", "5", "--sh-degrees", "2,3", "--kaula-degrees", "3", "--hidden", "4",
+        "--lm-iterations", "3", "--cv-sh", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    assert {"shape+sh3-kaula-cv", "shape+sh-cv"} <= set(rep["field_error"])
+    assert rep["cv_degree"]["shape+sh-cv"] in (2, 3)
+    degree, alpha = rep["fits"]["shape+sh-cv"]["selection"]
+    assert degree["candidates"] == [2, 3] and alpha["name"] == "kaula_alpha"
+    assert rep["kaula_alpha"]["shape+sh-cv"] == alpha["chosen"]
+    (alpha,) = rep["fits"]["shape+sh3-kaula-cv"]["selection"]
+    assert rep["kaula_alpha"]["shape+sh3-kaula-cv"] == alpha["chosen"]
+    assert rep["fits"]["shape+sh3-kaula-cv"]["n_validation"] == 0  # folds of all the arcs
+
+
 #: A tiny deep campaign: 4 orbits in 2 stages, a 4-unit network, short fits.
 TINY_DEEP = [
     "experiment", "deep", *TINY_CAMPAIGN, "--orbits", "4", "--radius-rb", "1.2,1.8",
@@ -543,6 +564,31 @@ def test_swarm_tiny_harmonic_scan(tmp_path):
     assert "harmonic penalty weight chosen per fit from 0, 10, 1000" in readme
     assert "(the strongest within one standard error of the lowest)" in readme
     assert "- gravity-only network: " in readme
+
+
+def test_swarm_tiny_harmonic_weight_by_k_folds(tmp_path):
+    out = tmp_path / "swarm"
+    args = [
+        "experiment", "swarm", *TINY_SWARM, "--arcs", "12", "--sh-degrees", "2",
+        "--lm-iterations", "3", "--harmonic-scan", "0,10,1e3", "--harmonic-scan-folds", "2",
+        "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rep = json.loads((out / "results.json").read_text())["repetitions"][0]
+    for kind, scan in rep["harmonic_scan"].items():
+        table = scan["selection"]
+        # strongest (simplest) first, whatever the order given; 2 folds of the training arcs
+        assert table["candidates"] == [1000.0, 10.0, 0.0] and table["folds"] == 2
+        assert scan["chosen"] == table["chosen"] and "field_error" not in scan
+        assert (
+            rep["fits"][kind]["network"].get("harmonic", {}).get("weight", 0.0) == (scan["chosen"])
+        )
+    assert "- gravity-only network: " in (out / "README.md").read_text()
+    one = runner.invoke(app, [*args[:-2], "--harmonic-scan-folds", "1", "-o", str(tmp_path / "x")])
+    assert one.exit_code == 2 and "harmonic_scan_folds" in " ".join(one.output.split()).replace(
+        "-", "_"
+    )
 
 
 def test_choose_weight_rules():

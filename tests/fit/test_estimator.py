@@ -13,7 +13,9 @@ from hamgrav.errors import HamgravWarning, InputError
 from hamgrav.fit.base import Outcome, SolveResult
 from hamgrav.fit.covariance import sample_covariance
 from hamgrav.fit.estimator import (
+    MIN_VALIDATION_ARCS,
     GravityEstimator,
+    default_holdout,
     noise_sigmas,
     noise_whitening,
     validation_split,
@@ -67,7 +69,9 @@ def test_whitening_needs_positive_noise(small_arcs):
 
 
 def test_weighted_fit_whitens_the_residuals(small_arcs, synthetic_truth):
-    weighted = GravityEstimator("sh", degree=2, weighted=True, body=synthetic_truth.body)
+    weighted = GravityEstimator(
+        "sh", degree=2, weighted=True, validation_fraction=0.0, body=synthetic_truth.body
+    )
     weighted.fit(small_arcs)
     problem = ArcProblem(weighted.model_, small_arcs, whitening=noise_whitening(small_arcs))
     assert weighted.result_.initial_cost == pytest.approx(problem.cost(np.zeros(5)), rel=1e-12)
@@ -76,7 +80,9 @@ def test_weighted_fit_whitens_the_residuals(small_arcs, synthetic_truth):
     raw = ArcProblem(weighted.model_, small_arcs).residuals(weighted.params_)
     np.testing.assert_allclose(whitened, raw @ noise_whitening(small_arcs).T, rtol=1e-12)
     assert weighted.fitted_.solver["weighted"] is True
-    plain = GravityEstimator("sh", degree=2, body=synthetic_truth.body).fit(small_arcs)
+    plain = GravityEstimator(
+        "sh", degree=2, validation_fraction=0.0, body=synthetic_truth.body
+    ).fit(small_arcs)
     assert plain.result_.initial_cost == pytest.approx(
         ArcProblem(plain.model_, small_arcs).cost(np.zeros(5)), rel=1e-12
     )
@@ -113,7 +119,7 @@ def test_kaula_scan_keeps_the_best_alpha(small_arcs, synthetic_truth):
         return calls[-1]
 
     est = GravityEstimator(
-        "sh", degree=3, kaula="scan", kaula_metric=metric, body=synthetic_truth.body
+        "sh", degree=3, kaula="truth-scan", kaula_metric=metric, body=synthetic_truth.body
     ).fit(small_arcs)
     scan = est.fitted_.solver["kaula_scan"]
     assert [a for a, _ in scan] == [1e-8, 1e-7, 1e-6, 1e-5, 1e-4]
@@ -125,7 +131,7 @@ def test_kaula_scan_keeps_the_best_alpha(small_arcs, synthetic_truth):
 def test_kaula_scan_without_the_truth_chooses_on_held_out_arcs(small_arcs, synthetic_truth):
     held_out = np.array([2, 6])
     est = GravityEstimator(
-        "sh", degree=3, kaula="scan", validation_fraction=0.2, body=synthetic_truth.body
+        "sh", degree=3, kaula="holdout-scan", validation_fraction=0.2, body=synthetic_truth.body
     )
     est.fit(small_arcs, validation=held_out)
     scan = est.fitted_.solver["kaula_scan"]
@@ -143,15 +149,22 @@ def test_kaula_scan_without_the_truth_chooses_on_held_out_arcs(small_arcs, synth
 
 
 def test_kaula_scan_needs_a_metric_or_held_out_arcs(small_arcs, synthetic_truth):
-    est = GravityEstimator("sh", degree=3, kaula="scan", body=synthetic_truth.body)
+    est = GravityEstimator(
+        "sh", degree=3, kaula="holdout-scan", validation_fraction=0.0, body=synthetic_truth.body
+    )
     with pytest.raises(InputError, match="validation arcs"):
         est.fit(small_arcs)
+    # the truth scan is named as such: the old name says where each option went
+    with pytest.raises(InputError, match="'truth-scan' .* 'holdout-scan' .* 'cv'"):
+        GravityEstimator("sh", degree=3, kaula="scan", body=synthetic_truth.body).fit(small_arcs)
 
 
 def test_validation_split_is_decided_once(small_arcs, synthetic_truth):
     est = GravityEstimator("network", hidden=(4,), adam_steps=3, body=synthetic_truth.body)
     est.fit(small_arcs)
-    train, val = validation_split(small_arcs.n_arcs, 0.12, 0)
+    # 12 % of 9 arcs rounds to 1: the default holds out its minimum of 2
+    train, val = validation_split(small_arcs.n_arcs, default_holdout(small_arcs.n_arcs), 0)
+    assert len(val) == MIN_VALIDATION_ARCS
     assert np.array_equal(est.validation_, val) and np.array_equal(est.train_, train)
     fixed = np.array([0, 5])
     est.fit(small_arcs, validation=fixed)

@@ -95,7 +95,11 @@ def test_warm_start_converges_faster(sh_world, synthetic_truth):
 
     def estimator():
         return GravityEstimator(
-            "sh", degree=4, solver=LevenbergMarquardt(rtol=1e-9), body=synthetic_truth.body
+            "sh",
+            degree=4,
+            validation_fraction=0.0,
+            solver=LevenbergMarquardt(rtol=1e-9),
+            body=synthetic_truth.body,
         )
 
     warm_fit, cold_fit = estimator(), estimator()
@@ -281,7 +285,12 @@ def _spied_continual_fit(small_arcs, truth, stages, max_iter):
             return super()._iterate(problem, theta, train, validation, *rest)
 
     est = GravityEstimator(
-        "sh", degree=2, validation_fraction=0.25, solver=Spy(max_iter=max_iter), body=truth.body
+        "sh",
+        degree=2,
+        validation_fraction=0.25,
+        select_on_validation=True,  # the solver is given the validation arcs, to check them
+        solver=Spy(max_iter=max_iter),
+        body=truth.body,
     )
     return fit_continual(est, small_arcs, stages), trained
 
@@ -709,7 +718,11 @@ def test_every_warm_stage_adds_to_the_previous_stages_normal_equations(
     propagated for them."""
     stages = [np.arange(0, 3), np.arange(3, 6), np.arange(6, 9)]
     est = GravityEstimator(
-        "sh", degree=2, solver=LevenbergMarquardt(max_iter=3), body=synthetic_truth.body
+        "sh",
+        degree=2,
+        validation_fraction=0.0,
+        solver=LevenbergMarquardt(max_iter=3),
+        body=synthetic_truth.body,
     )
     run = ContinualFit(est, small_arcs)
     arc_normals, normal_equations = ArcProblem.arc_normals, ArcProblem.normal_equations

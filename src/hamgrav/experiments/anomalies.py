@@ -23,6 +23,8 @@ from ..core.model import evaluate_field
 from ..fit.estimator import truth_shell_metric
 from .common import (
     CampaignConfig,
+    cv_sh_option,
+    cv_sh_row,
     errors_of,
     fit,
     harmonic_option,
@@ -73,6 +75,7 @@ class AnomaliesExperimentConfig(CampaignConfig):
         (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
     )
     harmonic: float = harmonic_option("shape+network")
+    cv_sh: bool = cv_sh_option()
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     shells_rb: tuple[float, ...] = option(
         (1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
@@ -103,14 +106,26 @@ class AnomaliesExperiment(Experiment):
             rows[f"shape+sh{d}"] = {"term": "sh", "degree": d, "prior": "shape"}
         metric = truth_shell_metric(arcs, truth.body, 1.05)
         for d in config.kaula_degrees:
-            sh = {"term": "sh", "degree": d, "prior": "shape", "kaula": "scan"}
-            rows[f"shape+sh{d}-kaula"] = {**sh, "kaula_metric": metric}
-            rows[f"shape+sh{d}-kaula-holdout"] = {**sh, "validation_fraction": 0.12}
+            sh = {"term": "sh", "degree": d, "prior": "shape"}
+            rows[f"shape+sh{d}-kaula"] = {**sh, "kaula": "truth-scan", "kaula_metric": metric}
+            rows[f"shape+sh{d}-kaula-holdout"] = {
+                **sh,
+                "kaula": "holdout-scan",
+                "validation_fraction": 0.12,
+            }
+            if config.cv_sh:  # k folds of all the arcs, as the other rows fit them all
+                rows[f"shape+sh{d}-kaula-cv"] = {**sh, "kaula": "cv", "validation_fraction": 0.0}
+        if config.cv_sh:
+            rows["shape+sh-cv"] = cv_sh_row(config.sh_degrees, prior="shape")
         rows["shape+network"] = best
         sets = sets_for(truth, config.shells_rb, (), ctx.seed)
         fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
         field_error = {n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()}
-        kaula = {n: e.fitted_.solver["kaula_alpha"] for n, e in fits.items() if "kaula" in n}
+        kaula = {
+            n: e.fitted_.solver["kaula_alpha"]
+            for n, e in fits.items()
+            if "kaula" in n or n.endswith("-cv")
+        }
         sh_rows = [n for n in fits if "+sh" in n]
         best_sh = min(sh_rows, key=lambda n: field_error[n]["r1.05"])
         ctx.say(
@@ -122,6 +137,7 @@ class AnomaliesExperiment(Experiment):
             "body": config.body,
             "n_arcs": arcs.n_arcs,
             "anomalies": truth.parameters,
+            **_cv_degrees(fits),
             "field_error": field_error,
             "kaula_alpha": kaula,
             "best_sh": best_sh,
@@ -135,6 +151,17 @@ class AnomaliesExperiment(Experiment):
 
     def figures(self, report: dict, artefacts: dict) -> dict:
         return {"maps.png": maps_figure(artefacts["maps"])}
+
+
+def _cv_degrees(fits: dict) -> dict:
+    """{"cv_degree": {row: chosen degree}} of the rows whose degree was chosen (else {})."""
+    chosen = {
+        n: s["chosen"]
+        for n, e in fits.items()
+        for s in e.fitted_.solver.get("selection", ())
+        if s["name"] == "degree"
+    }
+    return {"cv_degree": chosen} if chosen else {}
 
 
 def _maps(truth, fits, best_sh: str, shell_rb: float = 1.05, n_lon: int = 72, n_lat: int = 36):

@@ -20,6 +20,7 @@ from ..fit.continual import fit_continual
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
 from .common import (
     CampaignConfig,
+    committed_holdout,
     errors_of,
     harmonic_option,
     lm_iterations_option,
@@ -97,13 +98,17 @@ class ContinualExperiment(Experiment):
         start = time.perf_counter()
         for settings in models.values():
             # the first fit of a process would otherwise also time heyoka's compilation
-            GravityEstimator(body=truth.body, seed=ctx.seed, **settings).compile(arcs)
+            GravityEstimator(body=truth.body, seed=ctx.seed, **committed_holdout(settings)).compile(
+                arcs
+            )
         ctx.say(f"integrators compiled in {time.perf_counter() - start:.1f} s (not timed)")
         for mode in ("warm", "scratch"):
             for k in range(len(groups)):
                 stages[k][mode] = {}
             for name, settings in models.items():
-                est = GravityEstimator(body=truth.body, seed=ctx.seed, **settings)
+                est = GravityEstimator(
+                    body=truth.body, seed=ctx.seed, **committed_holdout(settings)
+                )
                 records = fit_continual(est, arcs, arriving, warm_start=mode == "warm")
                 for k, r in enumerate(records):
                     stages[k][mode][name] = {

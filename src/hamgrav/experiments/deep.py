@@ -65,6 +65,7 @@ from ..sim.descent import DESCENT_SPANS, DescentConfig, tracked_descents
 from .common import (
     CampaignConfig,
     campaign_artefacts,
+    committed_holdout,
     errors_of,
     harmonic_option,
     lm_iterations_option,
@@ -490,7 +491,7 @@ def _order_unit(unit, *, arcs, truth, settings, sizes, shells, seed, escape_fact
     mean exterior error after each stage, the D-optimal choices and the wall time [s]."""
     kind, groups = unit
     start = time.perf_counter()
-    est = GravityEstimator(body=truth.body, seed=seed, **settings)
+    est = GravityEstimator(body=truth.body, seed=seed, **committed_holdout(settings))
     choices = None
     if kind == "random":
         run = ContinualFit(est, arcs)
@@ -615,7 +616,9 @@ class DeepExperiment(Experiment):
         ]
         finals, after, descent_fits, fits = {}, {}, {}, {}
         for name, settings in rows.items():
-            est = GravityEstimator(body=truth.body, seed=ctx.seed, mapper=ctx.mapper, **settings)
+            est = GravityEstimator(
+                body=truth.body, seed=ctx.seed, mapper=ctx.mapper, **committed_holdout(settings)
+            )
             run = ContinualFit(est, all_arcs)
             for new in arriving:
                 run.add(new)

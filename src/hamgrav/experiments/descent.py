@@ -28,6 +28,8 @@ from ..sim.descent import DescentConfig, descend, miss_statistics, release_state
 from .common import (
     CampaignConfig,
     campaign_artefacts,
+    cv_sh_option,
+    cv_sh_row,
     errors_of,
     fit,
     harmonic_option,
@@ -90,6 +92,7 @@ class DescentExperimentConfig(CampaignConfig):
     learning_rate: float = option(1e-2, "Adam peak learning rate.", above=0)
     lm_iterations: int = lm_iterations_option("LM iteration cap of the 'network-best' row.")
     harmonic: float = harmonic_option()
+    cv_sh: bool = cv_sh_option()
     altitude_m: float = option(
         30.0, "Altitude of the surface-following evaluation set [m].", above=0
     )
@@ -165,6 +168,8 @@ class DescentExperiment(Experiment):
         if config.prior in ("none", "both"):
             rows["point-mass"] = {"term": "none"}
             rows |= {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}
+            if config.cv_sh:
+                rows["sh-cv"] = cv_sh_row(config.sh_degrees)
             rows["network"] = preset(
                 "network",
                 hidden=config.hidden,
@@ -178,6 +183,8 @@ class DescentExperiment(Experiment):
                 f"shape+sh{d}": {"term": "sh", "degree": d, "prior": "shape"}
                 for d in config.sh_degrees
             }
+            if config.cv_sh:
+                rows["shape+sh-cv"] = cv_sh_row(config.sh_degrees, prior="shape")
             rows["shape+network"] = {**best, "prior": "shape"}
         fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
 

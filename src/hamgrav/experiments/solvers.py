@@ -20,7 +20,7 @@ from ..fit.design import greedy_d_optimal, random_order_logdet, trajectory_infor
 from ..fit.estimator import GravityEstimator
 from ..fit.lm import LevenbergMarquardt
 from ..report.figures import logdet_figure
-from .common import CampaignConfig, errors_of, fit, sets_for, simulate
+from .common import CampaignConfig, committed_holdout, errors_of, fit, sets_for, simulate
 from .config import option
 from .runner import Experiment, RunContext, RunOutput, register
 from .solvers_report import solvers_readme
@@ -92,7 +92,7 @@ class SolverExperiment(Experiment):
         ):
             out = {}
             for warm in (True, False):
-                est = GravityEstimator(body=truth.body, seed=seed, **settings)
+                est = GravityEstimator(body=truth.body, seed=seed, **committed_holdout(settings))
                 records = fit_continual(est, arcs, stage_arcs, warm_start=warm)
                 out["warm" if warm else "scratch"] = [
                     {**r.summary(), **errors_of(est.model_, r.result.params, truth, r12)}

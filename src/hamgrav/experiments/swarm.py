@@ -34,8 +34,9 @@ from matplotlib.figure import Figure
 
 from ..bodies.catalogue import load_body
 from ..bodies.interiors import INTERIORS, build_truth
-from ..errors import InputError
+from ..errors import InputError, PropagationError
 from ..fit.estimator import PRESETS, preset
+from ..fit.selection import RULES, choose
 from ..sim.particles import SwarmConfig, simulate_swarm, solar_radiation_pressure
 from .common import (
     errors_of,
@@ -141,6 +142,14 @@ class SwarmExperimentConfig(ExperimentConfig):
         "error (paired over the held-out arcs) of the lowest, so that the more harmonic field "
         "is kept when the held-out arcs cannot tell the fits apart.",
     )
+    harmonic_scan_folds: int = option(
+        0,
+        "0: --harmonic-scan chooses on each fit's own held-out arcs (one split; the committed "
+        "results); k >= 2: by k-fold cross-validation over whole arcs of the training arcs "
+        "(the estimator's harmonic choice, same rule), then only the kept weight is fitted "
+        "on all of them (no field errors of the other weights).",
+        at_least=0,
+    )
     lm_iterations: int = lm_iterations_option("LM iteration cap of the network fits.")
     paper_network: bool = option(
         False,
@@ -169,6 +178,10 @@ class SwarmExperimentConfig(ExperimentConfig):
             raise InputError(
                 f"{label('harmonic_scan_rule')} must be one of {', '.join(SCAN_RULES)}, got "
                 f"{self.harmonic_scan_rule!r}"
+            )
+        if self.harmonic_scan_folds == 1:
+            raise InputError(
+                f"{label('harmonic_scan_folds')} must be 0 (one held-out split) or 2 or more"
             )
         if len(self.harmonic_scan) == 1:
             raise InputError(
@@ -200,7 +213,7 @@ class SwarmExperimentConfig(ExperimentConfig):
 
 
 #: How a harmonic-weight scan chooses among its fits (see :func:`choose_weight`).
-SCAN_RULES = ("one-standard-error", "lowest")
+SCAN_RULES = RULES
 
 
 def choose_weight(weights, arc_costs, rule: str) -> int:
@@ -209,24 +222,17 @@ def choose_weight(weights, arc_costs, rule: str) -> int:
     costs, so arcs with larger residuals weigh more, as in the total cost). A fit whose total
     is not finite is never kept.
 
-    ``lowest``: the fit of lowest total cost. ``one-standard-error`` (the one-standard-error
-    rule of cross-validation): the largest weight whose mean cost over the arcs exceeds the
+    The rule is :func:`hamgrav.fit.selection.choose` with the weights ranked strongest
+    (simplest) first, on a single held-out set: the one-fold case of the estimator's
+    cross-validation (``harmonic="cv"``). ``lowest``: the fit of lowest total cost.
+    ``one-standard-error``: the largest weight whose mean cost over the arcs exceeds the
     lowest fit's by at most one standard error of the paired per-arc differences."""
     costs = np.asarray(arc_costs, dtype=float)
-    totals = costs.sum(axis=1)
-    if not np.isfinite(totals).any():
-        raise ValueError("no fit of the scan has a finite held-out cost")
-    best = int(np.argmin(np.where(np.isfinite(totals), totals, np.inf)))  # a failed fit: never
-    if rule == "lowest":
-        return best
-    if rule != "one-standard-error":
-        raise ValueError(f"unknown rule {rule!r}; one of {SCAN_RULES}")
-    diff = costs - costs[best]
-    n = costs.shape[1]
-    se = diff.std(axis=1, ddof=1) / np.sqrt(n) if n > 1 else np.zeros(len(costs))
-    within = diff.mean(axis=1) <= se
-    within[best] = True
-    return max(np.flatnonzero(within), key=lambda k: weights[k])
+    order = sorted(range(len(weights)), key=lambda k: -weights[k])
+    try:
+        return order[choose(costs[order], rule)]
+    except PropagationError:
+        raise ValueError("no fit of the scan has a finite held-out cost") from None
 
 
 def _fit_harmonic_scan(label, arcs, truth, ctx, settings: dict, weights, rule: str, sets) -> tuple:
@@ -264,6 +270,36 @@ def _fit_harmonic_scan(label, arcs, truth, ctx, settings: dict, weights, rule: s
         "field_error": [errors_of(e.model_, e.params_, truth, sets) for e in fitted],
     }
     return fitted[k], scan
+
+
+def _fit_harmonic_cv(label, arcs, truth, ctx, settings: dict, weights, rule, folds) -> tuple:
+    """Fit a network row with its harmonic weight chosen among ``weights`` by ``folds``-fold
+    cross-validation over whole arcs of its training arcs (the estimator's ``harmonic``
+    choice, :mod:`hamgrav.fit.selection`; arcs, not particles, since the particles' A/m are
+    estimated from their own arcs). Returns the estimator and {"weights", "rule", "folds",
+    "chosen", "selection": the cross-validation table}."""
+    cv = {"harmonic": tuple(weights), "folds": folds, "cv_rule": rule, "cv_group": "arc"}
+    est = fit(
+        f"{label} (harmonic by {folds}-fold cross-validation)",
+        arcs,
+        truth,
+        ctx,
+        **{
+            **settings,
+            **cv,
+        },
+    )
+    (selection,) = est.selection_
+    for line in selection.lines(f"{label}: harmonic weight"):
+        ctx.say(line)
+    scan = {
+        "weights": [float(w) for w in weights],
+        "rule": rule,
+        "folds": folds,
+        "chosen": float(selection.chosen),
+        "selection": selection.describe(),
+    }
+    return est, scan
 
 
 def _median_relative_error(estimated, true) -> float:
@@ -329,7 +365,18 @@ class SwarmExperiment(Experiment):
         for (kind, model), settings in rows.items():
             label = f"{kind}/{model}"
             start = time.perf_counter()
-            if model == "network" and config.harmonic_scan:  # check(): two weights or more
+            if model == "network" and config.harmonic_scan and config.harmonic_scan_folds:
+                est, scans[kind] = _fit_harmonic_cv(
+                    label,
+                    arcs,
+                    truth,
+                    ctx,
+                    settings,
+                    config.harmonic_scan,
+                    config.harmonic_scan_rule,
+                    config.harmonic_scan_folds,
+                )
+            elif model == "network" and config.harmonic_scan:  # check(): two weights or more
                 est, scans[kind] = _fit_harmonic_scan(
                     label,
                     arcs,
@@ -343,7 +390,8 @@ class SwarmExperiment(Experiment):
             else:
                 est = fit(label, arcs, truth, ctx, **settings)
             stages[label] = round(time.perf_counter() - start, 1)
-            if kind in scans and model == "network":  # the scan has the kept fit's errors
+            if model == "network" and "field_error" in scans.get(kind, {}):
+                # the scan has the kept fit's errors
                 scan = scans[kind]
                 field_error[kind][model] = scan["field_error"][
                     scan["weights"].index(scan["chosen"])

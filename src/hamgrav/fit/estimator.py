@@ -8,16 +8,26 @@ per-trajectory parameters, runs the solver, and sets the learned attributes ``mo
 ``checked_arc_costs_`` (the per-arc costs behind ``diagnostics_["relative_cost"]``; see
 :mod:`hamgrav.fit.diagnostics`) and ``fitted_`` (a :class:`~hamgrav.fit.fitted.FittedModel`).
 Calling ``fit`` again overwrites them. A fit that does not clearly improve on no correction
-ends with the outcome "no improvement".
+ends with the outcome "no improvement"; one whose held-out cost per arc is far above its
+training cost is flagged overfit (:data:`hamgrav.fit.diagnostics.OVERFIT_FACTOR`).
+
+Every fit of a learnable term holds arcs out by default (:func:`default_holdout`): the
+diagnostics are then measured on arcs the fit did not see. Hyperparameters given as ``"cv"``
+/ ``"auto"`` or as a sequence of candidates (the Kaula alpha, the SH degree, the harmonic
+weight) are chosen from the training arcs alone by k-fold cross-validation
+(:mod:`hamgrav.fit.selection`), then the fit is made again on all training arcs with the
+chosen value; the held-out validation arcs play no part in the choice.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -32,19 +42,27 @@ from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
 from .base import Outcome, Solver, SolveResult
-from .diagnostics import constrained_parameters, diagnose
+from .diagnostics import OVERFIT_FACTOR, constrained_parameters, diagnose
 from .fitted import FittedModel
 from .harmonic import DEFAULT_COLLOCATION_POINTS, HarmonicPenalty
-from .kaula import scan_kaula
+from .kaula import KAULA_ALPHAS, scan_kaula
 from .lm import LevenbergMarquardt
+from .selection import GROUPS, RULES, Selection, cross_validate
 
 __all__ = [
+    "AUTO_DEGREES",
+    "CV_HARMONIC_WEIGHTS",
+    "CV_KAULA_ALPHAS",
+    "DEFAULT_VALIDATION_FRACTION",
     "GravityEstimator",
+    "MIN_ARCS_TO_HOLD_OUT",
+    "MIN_VALIDATION_ARCS",
     "TERMS",
     "body_for_arcs",
     "body_for_model",
     "body_in_frame",
     "body_with_arcs",
+    "default_holdout",
     "fitted_harmonic_penalty",
     "noise_sigmas",
     "noise_whitening",
@@ -106,6 +124,26 @@ UNFIT_MEMBER_FACTOR = 10.0
 #: errors unchanged. Gating from the first step left one continual draw's warm fit at r1.2 0.160
 #: from stage 2 on (scratch 0.079).
 NETWORK_WARM_SOLVER = replace(NETWORK_BEST_SOLVER, max_iter=8, patience=4, validation_gate=True)
+
+#: Arcs every fit of a learnable term holds out by default, as a fraction of its arcs (the
+#: paper's 12 %); see :func:`default_holdout` for the minimum.
+DEFAULT_VALIDATION_FRACTION = 0.12
+#: The default hold-out keeps at least this many arcs: the cost on one arc says little (its
+#: residual depends on where it flies), and two let the check see more than one region.
+MIN_VALIDATION_ARCS = 2
+#: With fewer arcs than this, the default holds none out (two of them would leave fewer than
+#: four to train on) and the fit says so: its cost is then checked on its training arcs.
+MIN_ARCS_TO_HOLD_OUT = 3 * MIN_VALIDATION_ARCS
+#: Candidate degrees of ``degree="auto"``: 2 (the lowest SH has) to 12 (165 coefficients):
+#: beyond it the paper's unregularised fits are far worse than no correction (its anomaly
+#: table: 3.8 at degree 12, 52 at 16 on the 1.03 R_B shell).
+AUTO_DEGREES = tuple(range(2, 13))
+#: Candidate Kaula weights of ``kaula="cv"``, simplest (strongest) first: the paper's scan
+#: and no regularisation.
+CV_KAULA_ALPHAS = (*sorted(KAULA_ALPHAS, reverse=True), 0.0)
+#: Candidate harmonic-penalty weights of ``harmonic="cv"``, simplest (strongest) first: a
+#: decade below network-best's 1e-5 and two above it.
+CV_HARMONIC_WEIGHTS = (1e-3, 1e-4, 1e-5, 1e-6)
 
 #: Named fit configurations (keyword arguments of :class:`GravityEstimator`).
 PRESETS: dict[str, dict] = {
@@ -260,8 +298,8 @@ def truth_shell_metric(arcs: Arcs, body: Body, shell_rb: float = 1.05):
 
     if not arcs.has_truth:
         raise InputError(
-            "the Kaula scan scores each alpha by the field error against the truth, and these "
-            "arcs have none (imported tracking); give --kaula ALPHA"
+            "the truth Kaula scan scores each alpha by the field error against the truth, and "
+            "these arcs have none (imported tracking); choose alpha from the arcs with --kaula cv"
         )
     sets = evaluation_sets(body, (shell_rb,), ())
 
@@ -281,13 +319,29 @@ def validation_split(n_arcs: int, fraction: float, seed: int) -> tuple[np.ndarra
     return np.sort(order[n_val:]), np.sort(order[:n_val])
 
 
+def default_holdout(n_arcs: int) -> float:
+    """The validation fraction a fit of ``n_arcs`` arcs holds out by default: none below
+    :data:`MIN_ARCS_TO_HOLD_OUT` arcs, else :data:`DEFAULT_VALIDATION_FRACTION` of them but at
+    least :data:`MIN_VALIDATION_ARCS` (as a fraction: :func:`validation_split` rounds it back
+    to that count, and the fraction recorded with a fit rebuilds its split)."""
+    if n_arcs < MIN_ARCS_TO_HOLD_OUT:
+        return 0.0
+    return max(DEFAULT_VALIDATION_FRACTION, MIN_VALIDATION_ARCS / n_arcs)
+
+
 class GravityEstimator:
     """Fit a gravity correction to tracking arcs.
 
     Args:
         term: "network", "sh" or "none" (no learnable term: the known part alone).
         hidden: hidden layer sizes of the network.
-        degree: SH degree (reference radius = the body's Brillouin radius).
+        degree: SH degree (reference radius = the body's Brillouin radius); "auto" or a
+            sequence of degrees: chosen by cross-validation (see ``folds``) among
+            :data:`AUTO_DEGREES` or the given ones, with the Kaula weight as given (0 when it
+            is chosen too: the weight is then chosen afterwards at the chosen degree, so each
+            choice orders its candidates from simplest to most flexible, which a joint grid
+            of degree and weight cannot, and costs degrees + weights fits per fold, not
+            their product).
         prior: None (central term only) or "shape" (the constant-density shape prior, centred
             on its own centre of mass, in the known part; the term then learns the residual).
         prior_mascons: mascons of the shape prior.
@@ -299,11 +353,19 @@ class GravityEstimator:
             position residuals divided by sigma_r, rotating-frame velocity residuals by
             sigma_v), so that the cost is half the samples' chi-square (each sample's own
             noise; the anchor's noise, carried along the arc, is not whitened).
-        kaula: None, a Kaula weight alpha, or "scan": every alpha of the scan fitted to the
-            training arcs, the best by ``kaula_metric`` or, without one, by the cost on the
-            validation arcs (what a mission can do without the truth).
-        kaula_metric: callable(params, model) -> score for the scan (lower is better).
-        validation_fraction: arcs held out for validation; None: 0.12 for the network, 0 for SH.
+        kaula: None, a Kaula weight alpha, "cv" or a sequence of weights (chosen by
+            cross-validation on the training arcs among :data:`CV_KAULA_ALPHAS` or the given
+            ones: no truth needed), "truth-scan" (experiments: every alpha of the paper's scan
+            fitted to the training arcs, the lowest ``kaula_metric`` kept, e.g.
+            :func:`truth_shell_metric`) or "holdout-scan" (the lowest cost on the validation
+            arcs: a single split).
+        kaula_metric: callable(params, model) -> score of "truth-scan" (lower is better).
+        validation_fraction: arcs held out for validation; None: :func:`default_holdout` of
+            the arcs for a learnable term (12 %, at least 2 arcs, none below 6 arcs).
+        select_on_validation: whether the solver sees the validation arcs (it then returns
+            its best-validation iterate, and may stop on them); None: for the network (an
+            early-stopped fit) but not for SH, whose LM fit runs to convergence and whose
+            held-out arcs are only checked, so that its held-out cost is an honest check.
         per_trajectory: per-trajectory terms (e.g. SRP) added to the model.
         estimate_trajectory_params: estimate every trajectory's per-trajectory parameters
             together with the learnable ones; otherwise ``trajectory_values`` are data.
@@ -315,11 +377,23 @@ class GravityEstimator:
             of ``init``) and the learned potential is their mean.
         harmonic: weight w of the harmonic penalty of a network fit by LM (None: off):
             0.5 w sum (lap N)^2 over 1500 seeded points outside the body out to the farthest
-            tracked sample, canonical (see :mod:`hamgrav.fit.harmonic`).
+            tracked sample, canonical (see :mod:`hamgrav.fit.harmonic`); "cv" or a sequence
+            of weights: chosen by cross-validation among :data:`CV_HARMONIC_WEIGHTS` or them.
         body: the :class:`~hamgrav.bodies.catalogue.Body` of the arcs (a catalogue body, one
             from files, or any other), moved into the arcs' frame and checked against them
             (:func:`body_with_arcs`); default: the body the arcs record.
-        mapper: map function for independent work (Kaula scan); builtin ``map`` by default.
+        mapper: map function for independent work (Kaula scan, cross-validation fits);
+            builtin ``map`` by default.
+        folds: folds k of the cross-validation of a hyperparameter chosen by "cv".
+        cv_group: what a fold holds out whole: "arc" or "trajectory" (every arc of an
+            orbit, descent or particle together; not with ``estimate_trajectory_params``,
+            whose held-out trajectories would have no estimated parameters).
+        cv_rule: "one-standard-error" (the simplest candidate within one standard error of
+            the lowest held-out cost) or "lowest" (see :mod:`hamgrav.fit.selection`).
+
+    Learned attributes besides those of the module docstring: ``selection_``, the
+    :class:`~hamgrav.fit.selection.Selection` of each hyperparameter chosen by
+    cross-validation (empty otherwise), also recorded in ``fitted_.solver["selection"]``.
     """
 
     def __init__(
@@ -348,6 +422,10 @@ class GravityEstimator:
         harmonic: float | None = None,
         body: Body | None = None,
         mapper: Callable = map,
+        select_on_validation: bool | None = None,
+        folds: int = 5,
+        cv_group: str = "arc",
+        cv_rule: str = "one-standard-error",
     ):
         self.term = term
         self.hidden = hidden
@@ -372,6 +450,10 @@ class GravityEstimator:
         self.harmonic = harmonic
         self.body = body
         self.mapper = mapper
+        self.select_on_validation = select_on_validation
+        self.folds = folds
+        self.cv_group = cv_group
+        self.cv_rule = cv_rule
 
     # ----------------------------------------------------------------- decisions, one place
     def build_model(self, arcs: Arcs) -> tuple[Model, dict]:
@@ -392,6 +474,11 @@ class GravityEstimator:
                 raise InputError(f"members must be at least 1, got {self.members!r}")
             learnable = NeuralPotential(tuple(int(h) for h in self.hidden), members=self.members)
         elif self.term == "sh":
+            if _is_choice(self.degree):
+                raise InputError(
+                    f"degree {self.degree!r} is chosen by cross-validation in fit(); a model "
+                    "is built for one integer degree"
+                )
             learnable = SphericalHarmonics(int(self.degree), body.brillouin_radius)
         return Model(known, learnable, tuple(self.per_trajectory)), prior_info
 
@@ -412,11 +499,13 @@ class GravityEstimator:
 
     def make_solver(self) -> Solver:
         """The solver object this estimator runs."""
+        if isinstance(self.solver, LevenbergMarquardt) and _is_number(self.kaula):
+            return replace(self.solver, kaula_alpha=float(self.kaula))
         if isinstance(self.solver, Solver):
             return self.solver
         name = self.solver_name
         if name == "lm":
-            alpha = self.kaula if isinstance(self.kaula, int | float) else 0.0
+            alpha = self.kaula if _is_number(self.kaula) else 0.0
             return LevenbergMarquardt(max_iter=self.lm_max_iter, kaula_alpha=float(alpha))
         if name == "adam":
             return Adam(
@@ -429,17 +518,75 @@ class GravityEstimator:
 
     @property
     def holdout_fraction(self) -> float:
-        """The validation fraction in use (default 0.12 for the network, 0 otherwise)."""
+        """The nominal validation fraction: as given, else :data:`DEFAULT_VALIDATION_FRACTION`
+        for a learnable term and 0 for "none" (nothing is fitted); a fit's own is
+        :meth:`holdout_for` its number of arcs (continual stages split their arriving arcs
+        by this one)."""
         if self.validation_fraction is not None:
             return float(self.validation_fraction)
-        return 0.12 if self.term == "network" else 0.0
+        return DEFAULT_VALIDATION_FRACTION if self.term != "none" else 0.0
+
+    def holdout_for(self, n_arcs: int) -> float:
+        """The validation fraction of a fit of ``n_arcs`` arcs: as given, else
+        :func:`default_holdout` (0 for "none")."""
+        if self.validation_fraction is not None or self.term == "none":
+            return self.holdout_fraction
+        return default_holdout(n_arcs)
+
+    @property
+    def solver_sees_validation(self) -> bool:
+        """Whether the solver is given the validation arcs (``select_on_validation``)."""
+        if self.select_on_validation is not None:
+            return bool(self.select_on_validation)
+        return self.term == "network"
 
     def split(self, arcs: Arcs) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The (training, validation) arc indices of a fit on ``arcs`` (None, None: all arcs
         train, no validation)."""
-        if self.holdout_fraction <= 0:
+        fraction = self.holdout_for(arcs.n_arcs)
+        if fraction <= 0:
             return None, None
-        return validation_split(arcs.n_arcs, self.holdout_fraction, self.seed)
+        return validation_split(arcs.n_arcs, fraction, self.seed)
+
+    def get_params(self) -> dict:
+        """The hyperparameters as given (the keyword arguments of ``__init__``)."""
+        names = inspect.signature(type(self).__init__).parameters
+        return {name: getattr(self, name) for name in names if name != "self"}
+
+    def choices(self) -> dict[str, tuple]:
+        """The hyperparameters this estimator chooses by cross-validation: {name: candidates,
+        simplest first} ("degree", "kaula", "harmonic"); empty when all are given."""
+        out = {}
+        if self.term == "sh" and _is_choice(self.degree):
+            given = AUTO_DEGREES if self.degree == "auto" else self.degree
+            out["degree"] = tuple(sorted(int(d) for d in given))
+        if _is_choice(self.kaula):
+            given = CV_KAULA_ALPHAS if self.kaula == "cv" else self.kaula
+            out["kaula"] = tuple(sorted((float(a) for a in given), reverse=True))
+        if _is_choice(self.harmonic):
+            given = CV_HARMONIC_WEIGHTS if self.harmonic == "cv" else self.harmonic
+            out["harmonic"] = tuple(sorted((float(w) for w in given), reverse=True))
+        for name, candidates in out.items():
+            if not candidates or any(
+                not math.isfinite(c) or c < (2 if name == "degree" else 0) for c in candidates
+            ):
+                raise InputError(
+                    f"{name} candidates must be finite and >= 0 (degrees >= 2), got {candidates}"
+                )
+        if "kaula" in out and self.term != "sh":
+            raise InputError("kaula applies to spherical harmonics (term 'sh')")
+        if "harmonic" in out and self.term != "network":
+            raise InputError("harmonic applies to the network (term 'network')")
+        if out and self.cv_rule not in RULES:
+            raise InputError(f"cv_rule must be one of {', '.join(RULES)}, got {self.cv_rule!r}")
+        if out and self.cv_group not in GROUPS:
+            raise InputError(f"cv_group must be one of {', '.join(GROUPS)}, got {self.cv_group!r}")
+        if out and self.cv_group == "trajectory" and self.estimate_trajectory_params:
+            raise InputError(
+                "cv_group 'trajectory' holds out whole trajectories, whose estimated "
+                "per-trajectory parameters the other folds cannot fit: use cv_group 'arc'"
+            )
+        return out
 
     def initial_params(self, model: Model, arcs: Arcs, seed: int | None = None) -> np.ndarray:
         """Scratch starting point: the learnable term's initialisation (seeded by ``seed``,
@@ -476,7 +623,22 @@ class GravityEstimator:
         ``warm``: whether ``init`` is an earlier model's parameters (a warm start: the
         ``warm_solver`` runs, and an ensemble member that no step improves keeps its block)
         rather than this fit's own checkpoint being resumed; default: ``init`` is given and
-        ``resume`` is not."""
+        ``resume`` is not. Hyperparameters to choose (:meth:`choices`) are chosen first, by
+        cross-validation on the training arcs (:meth:`select`); the fit is then the
+        chosen estimator's (a resumed fit chooses again, reproducibly, and resumes the
+        final fit)."""
+        if self.choices():
+            return self._fit_chosen(
+                arcs,
+                init=init,
+                validation=validation,
+                solver=solver,
+                callback=callback,
+                checkpoint=checkpoint,
+                resume=resume,
+                reuse=reuse,
+                warm=warm,
+            )
         model, prior_info = self.build_model(arcs)
         problem = self._problem(model, arcs)
         ensemble = isinstance(model.learnable, NeuralPotential) and model.learnable.members > 1
@@ -502,20 +664,36 @@ class GravityEstimator:
             train = np.setdiff1d(np.arange(arcs.n_arcs), validation)
         else:
             train, validation = self.split(arcs)
+            if problem.n_params and validation is None and self.validation_fraction is None:
+                warnings.warn(
+                    f"only {arcs.n_arcs} arc{'s' if arcs.n_arcs > 1 else ''}: none held out "
+                    "(the default holds out "
+                    f"{MIN_VALIDATION_ARCS} or more of {MIN_ARCS_TO_HOLD_OUT} arcs or more), so "
+                    "the fit is checked on its training arcs, where an overfit does not show",
+                    HamgravWarning,
+                    stacklevel=2,
+                )
         _warn_if_underdetermined(problem, ensemble, arcs, train)
         solver = solver or (self.warm_solver if warm else None) or self.make_solver()
+        # the arcs the solver may select its returned iterate on (SH: none, only checked)
+        seen = validation if self.solver_sees_validation else None
         kaula_scores = None
+        if self.kaula == "scan":
+            raise InputError(
+                "kaula='scan' is now 'truth-scan' (the field error against the truth, "
+                "kaula_metric) or 'holdout-scan' (the validation arcs); without a truth: 'cv'"
+            )
         if problem.n_params == 0:
             result = _nothing_to_fit(problem)
-        elif self.kaula == "scan":
-            if self.kaula_metric is not None:
+        elif self.kaula in ("truth-scan", "holdout-scan"):
+            if self.kaula == "truth-scan" and self.kaula_metric is not None:
                 metric = lambda c: self.kaula_metric(c, model)  # noqa: E731
-            elif validation is not None and len(validation):
+            elif self.kaula == "holdout-scan" and validation is not None and len(validation):
                 metric = lambda c: problem.cost(c, validation)  # noqa: E731
             else:
                 raise InputError(
-                    "kaula='scan' needs kaula_metric(params, model) or validation arcs "
-                    "(validation_fraction > 0) to choose alpha"
+                    "kaula='truth-scan' needs kaula_metric(params, model), 'holdout-scan' "
+                    "validation arcs (validation_fraction > 0), to choose alpha"
                 )
             if not isinstance(solver, LevenbergMarquardt):
                 raise InputError("the Kaula scan needs the LM solver")
@@ -529,14 +707,14 @@ class GravityEstimator:
             )
         elif ensemble:
             result, members = self._fit_members(
-                problem, init, solver, train, validation, callback, checkpoint, resume, reuse, warm
+                problem, init, solver, train, seen, callback, checkpoint, resume, reuse, warm
             )
         else:
             result = solver.solve(
                 problem,
                 init,
                 train=train,
-                validation=validation,
+                validation=seen,
                 callback=callback,
                 checkpoint=checkpoint,
                 resume=resume,
@@ -553,7 +731,17 @@ class GravityEstimator:
                 validation,
                 rank=not ensemble,
                 normal=result.data_normal,
+                training_cost=result.params_cost,
             )
+            if self.diagnostics_.get("overfit"):
+                warnings.warn(
+                    f"the fit looks overfit: its cost per held-out arc is "
+                    f"{self.diagnostics_['held_out_to_training']:.3g}x its cost per training arc "
+                    f"(above {OVERFIT_FACTOR:g}x); choose its settings from the arcs (kaula, "
+                    "harmonic 'cv', degree 'auto') or use a smaller model",
+                    HamgravWarning,
+                    stacklevel=2,
+                )
             self.checked_arc_costs_ = self.diagnostics_.pop("arc_costs")
             if ensemble:
                 ranks = [m.pop("constrained_parameters") for m in members]
@@ -600,7 +788,8 @@ class GravityEstimator:
             **result.solver,
             **result.summary(),
             "weighted": self.weighted,
-            "validation_fraction": self.holdout_fraction,
+            "validation_fraction": self.holdout_for(arcs.n_arcs),
+            "select_on_validation": self.solver_sees_validation,
             "n_validation": 0 if validation is None else int(len(validation)),
             "seed": self.seed,
             "n_arcs": arcs.n_arcs,
@@ -633,6 +822,75 @@ class GravityEstimator:
                 "truth_sha256": arcs.truth_digest() if arcs.has_truth else None,
             },
         )
+        return self
+
+    def select(self, arcs: Arcs, train: np.ndarray | None = None) -> tuple[dict, list[Selection]]:
+        """Choose the hyperparameters of :meth:`choices` by ``folds``-fold cross-validation on
+        the ``train`` arcs (default all; never the validation arcs of the fit): each candidate
+        is fitted on the other folds by this estimator's own procedure (its solver; the
+        network holds out its own validation arcs of them to select its iterate on, SH fits
+        use them all) and scored by its cost on the held-out fold, and ``cv_rule`` keeps one
+        (:func:`hamgrav.fit.selection.cross_validate`). The SH degree is chosen first, then
+        the Kaula weight at the chosen degree. Returns (the chosen settings, the selections)."""
+        choices = self.choices()
+        settings = {**self.get_params(), "mapper": map}
+        if "kaula" in choices:
+            settings["kaula"] = None  # the degree is chosen unregularised, then alpha at it
+        train = np.arange(arcs.n_arcs) if train is None else np.asarray(train, dtype=int)
+        selections = []
+        for name in ("degree", "kaula", "harmonic"):
+            if name not in choices:
+                continue
+            first = {**settings, name: choices[name][0]}
+            selection = cross_validate(
+                partial(_cv_score, settings, arcs, name),
+                choices[name],
+                arcs.trajectory,
+                train,
+                name="kaula_alpha" if name == "kaula" else name,
+                folds=self.folds,
+                group=self.cv_group,
+                rule=self.cv_rule,
+                seed=self.seed,
+                reference=partial(_no_correction_costs, first, arcs),
+                mapper=self.mapper,
+            )
+            settings[name] = selection.chosen
+            selections.append(selection)
+        settings["mapper"] = self.mapper
+        return settings, selections
+
+    def _fit_chosen(self, arcs: Arcs, *, init, validation, **fit_kwargs) -> GravityEstimator:
+        """:meth:`select` on the training arcs, then the chosen estimator's fit (with the
+        same validation arcs), whose learned attributes become this one's."""
+        if init is not None and "degree" in self.choices():
+            raise InputError(
+                "a warm start (init) continues a model of one structure: give the degree "
+                "instead of choosing it"
+            )
+        if validation is not None:
+            validation = np.sort(np.asarray(validation, dtype=int))
+            train = np.setdiff1d(np.arange(arcs.n_arcs), validation)
+        else:
+            train, validation = self.split(arcs)
+        settings, selections = self.select(arcs, train)
+        # the chosen fit's own split is this one's (same rule, seed and arcs)
+        chosen = GravityEstimator(**settings).fit(
+            arcs, init=init, validation=validation, **fit_kwargs
+        )
+        for name in (
+            "model_",
+            "params_",
+            "result_",
+            "train_",
+            "validation_",
+            "diagnostics_",
+            "checked_arc_costs_",
+            "fitted_",
+        ):
+            setattr(self, name, getattr(chosen, name))
+        self.selection_ = selections
+        self.fitted_.solver["selection"] = [s.describe() for s in selections]
         return self
 
     def compile(self, arcs: Arcs) -> GravityEstimator:
@@ -805,6 +1063,52 @@ class GravityEstimator:
         if fitted is None:
             raise InputError("the estimator has no fitted field yet; call fit(arcs) first")
         return fitted
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float | np.number) and not isinstance(value, bool)
+
+
+def _is_choice(value) -> bool:
+    """Whether a hyperparameter value asks for a choice: "cv", "auto", or candidates."""
+    if isinstance(value, str):
+        return value in ("cv", "auto")
+    return isinstance(value, Sequence | np.ndarray)
+
+
+def _cv_score(settings: dict, arcs: Arcs, name: str, candidate, train, held) -> np.ndarray:
+    """One cross-validation work unit: the estimator of ``settings`` with ``name`` =
+    ``candidate`` fitted on the ``train`` arcs alone; its costs on each ``held`` arc."""
+    inner = {**settings, name: candidate, "mapper": map}
+    if not GravityEstimator(**inner).solver_sees_validation:
+        inner["validation_fraction"] = 0.0  # held-out arcs would only be checked: train on all
+    estimator = GravityEstimator(**inner)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", HamgravWarning)  # the final fit reports its own
+        estimator.fit(arcs.subset(train))
+    return _held_out_problem(estimator, arcs, held).arc_costs(estimator.params_)
+
+
+def _no_correction_costs(settings: dict, arcs: Arcs, held) -> np.ndarray:
+    """The ``held`` arcs' costs with no correction (the learnable term zero, per-trajectory
+    parameters at their defaults), under the model of ``settings``."""
+    estimator = GravityEstimator(**{**settings, "mapper": map})
+    estimator.model_, _ = estimator.build_model(arcs)
+    theta = estimator.initial_params(estimator.model_, arcs)
+    theta[: estimator.model_.n_learn] = 0.0
+    return _held_out_problem(estimator, arcs, held).arc_costs(theta)
+
+
+def _held_out_problem(estimator: GravityEstimator, arcs: Arcs, held) -> ArcProblem:
+    """The data cost of ``estimator.model_`` on the ``held`` arcs (no regulariser: it scores
+    the fit, it does not fit)."""
+    return ArcProblem(
+        estimator.model_,
+        arcs.subset(held),
+        estimate_trajectory_params=estimator.estimate_trajectory_params,
+        trajectory_values=estimator.trajectory_values,
+        whitening=noise_whitening(arcs) if estimator.weighted else None,
+    )
 
 
 def _warn_if_underdetermined(problem: ArcProblem, ensemble: bool, arcs: Arcs, train) -> None:

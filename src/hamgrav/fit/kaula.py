@@ -13,6 +13,7 @@ from ..core.problem import ArcProblem
 from ..errors import PropagationError
 from .base import SolveResult
 from .lm import LevenbergMarquardt
+from .selection import choose
 
 __all__ = ["KAULA_ALPHAS", "scan_kaula"]
 
@@ -43,7 +44,11 @@ def scan_kaula(
 
     A fit whose parameters do not propagate the metric's arcs (a weak weight can let a high
     degree blow up along an arc that grazes the surface) scores infinity, and is never kept
-    while another weight scores finite.
+    while another weight scores finite; if none does, :class:`PropagationError`. The choice
+    is :func:`hamgrav.fit.selection.choose`'s "lowest" rule (one score per weight: no standard
+    error). Without a truth, :mod:`hamgrav.fit.selection` chooses alpha by cross-validation
+    (the estimator's ``kaula="cv"``); this scan is the paper's protocol (``"truth-scan"``)
+    and the single held-out split (``"holdout-scan"``).
 
     Returns (best alpha, best SolveResult, list of (alpha, metric value)).
     """
@@ -58,5 +63,5 @@ def scan_kaula(
         return value if math.isfinite(value) else math.inf
 
     scores = [(float(a), score(r.params)) for a, r in zip(alphas, results, strict=True)]
-    k = int(np.argmin([s for _, s in scores]))
+    k = choose([[s] for _, s in scores], "lowest")
     return scores[k][0], results[k], scores
