@@ -129,8 +129,7 @@ def row_settings(row: str, config: OwnBodyConfig) -> dict:
     if row == "sh-auto":
         return {
             "term": "sh",
-            "degree": "auto",
-            "max_degree": config.max_degree,
+            "degree": tuple(range(2, config.max_degree + 1)),
             "kaula": "cv",
             "folds": config.folds,
         }
@@ -195,7 +194,9 @@ class OwnBodyExperiment(Experiment):
                     **{k: fitted.solver.get(k) for k in ("outcome", "iterations", "n_params")},
                     "wall_s": round(time.perf_counter() - start, 1),
                     "degree": getattr(fitted.model.learnable, "degree", None),
-                    "selection": fitted.solver.get("selection"),
+                    "chosen": {
+                        sel["name"]: sel["chosen"] for sel in fitted.solver.get("selection", [])
+                    },
                     "relative_cost": est.diagnostics_.get("relative_cost"),
                     "improved": bool(est.diagnostics_.get("improved")),
                 }
@@ -294,8 +295,7 @@ def own_body_readme(report: dict) -> list[str]:
         )
     lines += ["", "## What each fit chose (first draw)", ""]
     for row, f in first["fits"].items():
-        sel = f.get("selection") or {}
-        chosen = ", ".join(f"{k} {v}" for k, v in (sel.get("chosen") or {}).items())
+        chosen = ", ".join(f"{k} {v}" for k, v in f["chosen"].items())
         lines.append(
             f"- {row}: {f['outcome']}, {f['n_params']} parameters, held-out cost "
             f"{f['relative_cost']:.3g} of no correction"
