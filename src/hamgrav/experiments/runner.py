@@ -131,6 +131,7 @@ def _register_all() -> None:
         descent,
         interiors,
         own_body,
+        selection,
         solvers,
         swarm,
         uncertainty,
