@@ -922,6 +922,19 @@ def fit(
             raise typer.Exit(code=3)
 
 
+def _check_shells(radii) -> None:
+    """Refuse shells so far out that the truth's perturbing potential is lost to round-off
+    (see :data:`hamgrav.core.fields.MAX_SHELL_RB`)."""
+    from .core.fields import MAX_SHELL_RB
+
+    if max(radii) > MAX_SHELL_RB:
+        raise InputError(
+            f"--shells (radii r / R_B) must be at most {MAX_SHELL_RB:g}, got {max(radii):g}: "
+            "farther out the perturbing potential is below float64 round-off of the total; "
+            "give shells within 1000 R_B"
+        )
+
+
 def _check_body_model(arcs, fitted, source, model: str, fix: str) -> None:
     """Refuse arcs (read from ``source``) whose GM or spin period differs from the model's
     (named ``model`` in the message): they are of another body model, so the model's
@@ -1082,6 +1095,7 @@ def evaluate(
     figure = _output(figure, "--figure", model=model_file, arcs=arcs_file)
     # shells inside R_B cut through the body, where the truth's mascons are singular
     radii = _floats(shells, "--shells (radii r / R_B)", 1.0)
+    _check_shells(radii)
     altitudes = _floats(altitude, "--altitude (metres above the surface)", 0.0)
     fitted = load_model(model_file)
     arcs = _truth_arcs(fitted, model_file, arcs_file)

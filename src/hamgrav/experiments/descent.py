@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.fields import MAX_SHELL_RB
 from ..core.model import TRUTH_TOLERANCE
 from ..core.propagation import propagate_scalar
 from ..errors import InputError
@@ -107,7 +108,11 @@ class DescentExperimentConfig(CampaignConfig):
         "with both blocks.",
     )
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
+        (1.05, 1.1, 1.2, 1.5),
+        "Evaluation shells [R_B].",
+        at_least=1.0,
+        at_most=MAX_SHELL_RB,
+        nonempty=True,
     )
 
     def check(self) -> None:
