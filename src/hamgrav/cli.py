@@ -223,6 +223,21 @@ def _ints(text: str, name: str, low: int = 1) -> list[int]:
     return [_number(v, name, low, integer=True) for v in values]
 
 
+def _seed(value, name: str = "--seed", count: int = 1) -> int:
+    """A seed: an integer >= 0 whose ``count`` consecutive seeds (repetitions) all fit the
+    64-bit integer seeds are stored in (:data:`hamgrav.core.arcs.MAX_SEED`)."""
+    from .core.arcs import MAX_SEED
+
+    seed = _number(value, name, 0, integer=True)
+    if seed + count - 1 > MAX_SEED:
+        runs = f" with --repeat {count} (seeds up to {name} + {count - 1})" if count > 1 else ""
+        raise InputError(
+            f"{name} must be an integer in [0, 2**63 - 1]{runs}: seeds are stored as 64-bit "
+            f"integers, got {value!r}; give a smaller seed"
+        )
+    return seed
+
+
 def _output(path: Path | None, name: str = "-o", **inputs: Path | None) -> Path | None:
     """Check an output file before the work that produces it (see :func:`check_output`);
     ``inputs``: the command's input files by name, which the output must not replace."""
@@ -260,6 +275,15 @@ BodyOption = Annotated[
         "--body",
         help="The body: a catalogue name or a body TOML (default: the one the arcs or model "
         "file records; older files, which record only a name, are looked up by it).",
+    ),
+]
+
+MaxMemoryOption = Annotated[
+    str | None,
+    typer.Option(
+        "--max-memory",
+        help="Refuse the job before it starts if its arrays need more memory than this (e.g. "
+        "8GiB; default: the memory available now).",
     ),
 ]
 
@@ -303,15 +327,21 @@ def bodies() -> None:
 def body(
     name: Annotated[str, typer.Argument(help="A catalogue name, 'synthetic' or a body TOML file.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    mascons: Annotated[int, typer.Option(help="Uniform-truth mascon count.")] = (
-        DEFAULT_TRUTH_MASCONS
-    ),
+    mascons: Annotated[
+        str, typer.Option(help="Uniform-truth mascon count (an integer; 1e4 is read as 10000).")
+    ] = str(DEFAULT_TRUTH_MASCONS),
 ) -> None:
     """Constants, Brillouin radius, envelope and perturbation figures of one body."""
     from .bodies.summary import body_report
+    from .sim.campaign import MAX_TRUTH_MASCONS
 
-    _number(mascons, "--mascons", 10, integer=True)
-    report = body_report(load_body(name), n_mascons=mascons)
+    count = _floats(mascons, "--mascons")
+    if len(count) != 1 or not count[0].is_integer() or not 10 <= count[0] <= MAX_TRUTH_MASCONS:
+        raise InputError(
+            f"--mascons must be one integer in [10, {MAX_TRUTH_MASCONS}] (the truth is "
+            f"compressed from about 120000 volume samples), got {mascons!r}"
+        )
+    report = body_report(load_body(name), n_mascons=int(count[0]))
     if as_json:
         sys.stdout.write(json.dumps(report, allow_nan=False) + "\n")
         return
@@ -356,6 +386,7 @@ def simulate(
             "for orbit k) to this file (.bsp)."
         ),
     ] = None,
+    max_memory: MaxMemoryOption = None,
 ) -> None:
     """Simulate a tracking campaign and write its arcs (HDF5)."""
     from .bodies.catalogue import check_body_name
@@ -363,7 +394,9 @@ def simulate(
     from .io.arcs import save_arcs
     from .io.oem import export_oem_by_trajectory
     from .sim.campaign import load_campaign, simulate_campaign
+    from .sizing import check_memory, memory_limit
 
+    limit = memory_limit(max_memory)
     _output(output, CAMPAIGN=campaign)
     if spk is not None:
         check_output(spk, "--spk", {"CAMPAIGN": campaign, "-o": output})
@@ -376,6 +409,12 @@ def simulate(
         check_body_name(config.body)
     except BodyDataError as exc:
         raise InputError(f"{campaign}: body: {exc}") from None
+    check_memory(
+        f"simulating {campaign}",
+        config.memory_parts(),
+        limit,
+        "lower [orbits] count, [tracking] arcs_per_orbit or samples_per_arc",
+    )
     n = len(config.families)
     with _progress() as progress:
         task = progress.add_task(f"simulating {n} orbits", total=n)
@@ -632,6 +671,25 @@ MAX_SH_DEGREE = 40
 MAX_HIDDEN = 1024
 
 
+def _check_fit_memory(settings: dict, hidden_sizes, arcs, limit) -> None:
+    """Refuse a fit whose design blocks and normal matrices cannot fit in ``limit`` (one
+    member's parameters: the members of network-best are fitted one at a time)."""
+    from .sizing import check_memory, fit_bytes, network_parameters
+
+    if settings["term"] == "network":
+        n_params, fix = network_parameters(hidden_sizes), "use fewer or smaller --hidden layers"
+    elif settings["term"] == "sh":
+        n_params, fix = (settings["degree"] + 1) ** 2 - 4, "lower the degree of --model sh:L"
+    else:
+        return
+    check_memory(
+        f"fitting {n_params} parameters to {arcs.n_arcs} arcs",
+        fit_bytes(arcs.n_arcs, arcs.samples_per_arc, n_params),
+        limit,
+        fix,
+    )
+
+
 def _stage_of(solver: dict) -> dict:
     """The stage record of a fit from its model file's solver entry."""
     keys = ("n_arcs", "n_validation", "solver", "outcome", "iterations", "cost", "wall_s")
@@ -723,6 +781,7 @@ def fit(
         ),
     ] = False,
     body: BodyOption = None,
+    max_memory: MaxMemoryOption = None,
 ) -> None:
     """Fit a gravity correction to tracking arcs and write the model file.
 
@@ -739,6 +798,7 @@ def fit(
         save_checkpoint,
         save_model,
     )
+    from .sizing import memory_limit
 
     # options, then the output, then the inputs: all before any computation
     settings = _model_option(model)
@@ -761,7 +821,8 @@ def fit(
     _number(folds, "--folds", 2, integer=True)
     _number(steps, "--steps", 1, integer=True)
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
-    _number(seed, "--seed", 0, integer=True)
+    _seed(seed)
+    limit = memory_limit(max_memory)
     _output(output, ARCS=arcs_file)  # -o MODEL --init MODEL continues the model in place
     ckpt = checkpoint_path_for(output)
     if resume and not ckpt.exists():
@@ -774,6 +835,7 @@ def fit(
     _output(ckpt, "checkpoint")
 
     arcs = load_arcs(arcs_file)
+    _check_fit_memory(settings, hidden_sizes, arcs, limit)
     body_obj = _body_for(body, arcs=arcs)
     if solver is not None:  # a solver by name replaces the configuration's
         settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
@@ -929,6 +991,19 @@ def _weight_or_cv(value: str | None, name: str, metavar: str) -> float | str | N
     if len(values) != 1:
         raise InputError(f"{label} takes one value, got {value!r}")
     return values[0]
+
+
+def _check_shells(radii) -> None:
+    """Refuse shells so far out that the truth's perturbing potential is lost to round-off
+    (see :data:`hamgrav.core.fields.MAX_SHELL_RB`)."""
+    from .core.fields import MAX_SHELL_RB
+
+    if max(radii) > MAX_SHELL_RB:
+        raise InputError(
+            f"--shells (radii r / R_B) must be at most {MAX_SHELL_RB:g}, got {max(radii):g}: "
+            "farther out the perturbing potential is below float64 round-off of the total; "
+            "give shells within 1000 R_B"
+        )
 
 
 def _check_body_model(arcs, fitted, source, model: str, fix: str) -> None:
@@ -1091,6 +1166,7 @@ def evaluate(
     figure = _output(figure, "--figure", model=model_file, arcs=arcs_file)
     # shells inside R_B cut through the body, where the truth's mascons are singular
     radii = _floats(shells, "--shells (radii r / R_B)", 1.0)
+    _check_shells(radii)
     altitudes = _floats(altitude, "--altitude (metres above the surface)", 0.0)
     fitted = load_model(model_file)
     arcs = _truth_arcs(fitted, model_file, arcs_file)
@@ -1426,6 +1502,7 @@ def select(
         Path | None, typer.Option("-o", "--output", help="Write the picks as JSON.")
     ] = None,
     body: BodyOption = None,
+    max_memory: MaxMemoryOption = None,
 ) -> None:
     """D-optimal choice of the next orbits from a candidate pool, from predicted sensitivities
     at the current model (no measurements, no truth)."""
@@ -1433,9 +1510,11 @@ def select(
     from .io.files import atomic_path
     from .io.models import load_model
     from .sim.campaign import load_campaign
+    from .sizing import check_memory, memory_limit, pool_bytes
 
     _number(picks, "--picks", 1, integer=True)
-    _number(seed, "--seed", 0, integer=True)
+    _seed(seed)
+    limit = memory_limit(max_memory)
     _output(output, MODEL=model_file, **{"--pool": pool})
     fitted = load_model(model_file)
     config = load_campaign(pool)
@@ -1452,6 +1531,18 @@ def select(
             f"--picks {picks} is more than the {len(config.families)} candidate orbits of "
             f"the pool {pool}"
         )
+    tracking = config.tracking
+    check_memory(
+        f"choosing from the pool {pool}",
+        pool_bytes(
+            len(config.families),
+            tracking.arcs_per_orbit,
+            tracking.samples_per_arc,
+            fitted.model.n_learn,
+        ),
+        limit,
+        "lower [orbits] count, [tracking] arcs_per_orbit or samples_per_arc of the pool",
+    )
     with _progress() as progress:
         progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
         rows = select_orbits(
@@ -1533,8 +1624,8 @@ def _experiment_command(experiment):
         if output.exists() and not output.is_dir():
             raise InputError(f"-o {output} exists and is not a folder; give a folder path")
         check_writable_folder(output, "-o")
-        _number(runner["seed"], "--seed", 0, integer=True)
         _number(runner["repeat"], "--repeat", 1, integer=True)
+        _seed(runner["seed"], count=runner["repeat"])
         _number(runner["workers"], "--workers", 0, integer=True)
         report, _ = _run_and_report(
             experiment,
@@ -1634,7 +1725,7 @@ def demo(
     from .io.arcs import save_arcs
     from .io.oem import export_oem_by_trajectory
 
-    _number(seed, "--seed", 0, integer=True)
+    _seed(seed)
     if output.exists() and not output.is_dir():
         raise InputError(f"-o {output} exists and is not a folder; give a folder path")
     check_writable_folder(output, "-o")

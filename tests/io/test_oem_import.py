@@ -1,5 +1,6 @@
 import datetime as dt
 import math
+import re
 import warnings
 from dataclasses import replace
 
@@ -457,3 +458,71 @@ def test_oem_centre_as_naif_id_or_spice_name(synthetic, tmp_path):
     path.write_text(text.replace("CENTER_NAME = SYNTHETIC", "CENTER_NAME = ITOKAWA BARYCENTER"))
     with pytest.raises(InputError, match="is a barycentre"):
         import_oem([path], stand_in, **noise)
+
+
+# ------------------------------------------------------------- redundant information checked
+def _velocities_times(path, out, factor):
+    """``path`` with every velocity multiplied by ``factor`` (as if written in other units)."""
+    lines = []
+    for line in path.read_text().splitlines():
+        words = line.split()
+        if len(words) == 7 and words[0][:4].isdigit():
+            words[4:] = [f"{float(w) * factor:.14e}" for w in words[4:]]
+            line = " ".join(words)
+        lines.append(line)
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+def test_velocities_in_other_units_than_positions_are_refused(synthetic, exported, tmp_path):
+    # km positions with m/s velocities: read as km/s, 1000 times the positions' rate of change
+    mixed = _velocities_times(exported[1], tmp_path / "mixed.oem", 1e3)
+    with pytest.raises(
+        DatasetError,
+        match=r"mixed.oem: its velocities are 1e\+03 times the rate of change of its positions "
+        r".*in different units \(an OEM holds km and km/s\): convert one of them$",
+    ):
+        import_oem([exported[0], mixed], synthetic)
+    slow = _velocities_times(exported[2], tmp_path / "slow.oem", 1e-3)  # m/s read as km/s
+    with pytest.raises(DatasetError, match="slow.oem: its velocities are 0.001 times"):
+        import_oem([slow], synthetic)
+    # tracking noise of 0.05 m on steps of about 0.2 m: the files as written pass
+    assert import_oem(exported, synthetic).n_arcs == 9
+    # noise that drowns the motion is not judged (the scale is too uncertain)
+    noisy = _gap_file(tmp_path / "noisy.oem")
+    assert import_oem([noisy], synthetic, sigma_r_m=1.0, sigma_v_m_s=1e-3).n_arcs == 2
+
+
+def test_covariance_blocks_must_be_positive_definite(synthetic, tmp_path):
+    path = _gap_file(tmp_path / "cov.oem", covariance=True)
+    text = path.read_text()
+    # the second row of the first block: a correlation of x and y of 2
+    row = "0.000000e+00 9.000000e-06"
+    assert row in text
+    bad = tmp_path / "indefinite.oem"
+    bad.write_text(text.replace(row, "1.800000e-05 9.000000e-06", 1))
+    with pytest.raises(
+        InputError,
+        match=r"indefinite.oem: covariance block 1 \(EPOCH 2030-01-01.*\) is not positive "
+        r"definite \(its correlation matrix has the eigenvalue -1; .*pass --sigma-r",
+    ):
+        import_oem([bad], synthetic)
+    # a correlation within +-1 is a covariance
+    fine = tmp_path / "correlated.oem"
+    fine.write_text(text.replace(row, "4.500000e-06 9.000000e-06", 1))
+    assert import_oem([fine], synthetic).config["noise_from"] == "covariance"
+
+
+def test_files_of_frames_with_other_origins_are_refused(synthetic, exported, tmp_path):
+    text = exported[1].read_text()
+    found = re.search(r"origin at \(([^,]*),", text)
+    x = float(found.group(1))
+    moved = tmp_path / "other-campaign.oem"
+    moved.write_text(text.replace(f"origin at ({found.group(1)},", f"origin at ({x + 37.0!r},"))
+    with pytest.raises(
+        InputError,
+        match=r"the files are in frames of different origins \(37 m apart\): .*orbit-0.oem, "
+        r".*orbit-2.oem at \(.*\) m; .*other-campaign.oem at \(.*\) m \(mesh frame\); import "
+        r"the files of each frame separately$",
+    ):
+        import_oem([exported[0], moved, exported[2]], synthetic)

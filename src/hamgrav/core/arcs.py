@@ -9,7 +9,7 @@ import numpy as np
 
 from .mascons import MasconSet
 
-__all__ = ["Arcs", "BodyRecord", "NO_TRUTH", "mesh_digest"]
+__all__ = ["Arcs", "BodyRecord", "MAX_SEED", "NO_TRUTH", "mesh_digest"]
 
 #: The ``interior`` of arcs that carry no truth (tracking imported from files).
 NO_TRUTH = "none"
@@ -21,6 +21,11 @@ def mesh_digest(vertices_m, faces) -> str:
     h = hashlib.sha256()
     _hash_arrays(h, np.asarray(vertices_m, dtype=float), np.asarray(faces, dtype=np.int64))
     return h.hexdigest()
+
+
+#: Largest seed: seeds are stored as 64-bit signed integers (the arcs file's ``seed``
+#: attribute, numpy's int64), so a larger one would simulate and then fail to be written.
+MAX_SEED = 2**63 - 1
 
 
 @dataclass(frozen=True, eq=False)

@@ -38,6 +38,14 @@ def perturbing_potential(mascons: MasconSet, points: np.ndarray) -> np.ndarray:
     return mascon_potential(mascons, points) - central_potential(points)
 
 
+#: Largest shell radius a field error is computed on [R_B]. The truth's perturbing potential
+#: is its total potential minus 1/r, and falls as (R_B / r)^2 of 1/r or faster: at 1e3 R_B it
+#: is about 1e-8 of 1/r and keeps some 8 digits of float64's 16, while by 1e8 R_B round-off
+#: is all that is left (the error of an SH 2 fit reads 0.165 at 1e3 and 1e5 R_B, 1.01 at 1e8
+#: and non-finite at 1e300: the truth there is noise, not the model's failing).
+MAX_SHELL_RB = 1e3
+
+
 def shell_points(radius: float, n: int = 500, seed: int = 0) -> np.ndarray:
     """``n`` seeded random directions (uniform on the sphere) at ``radius`` [canonical]; (n, 3)."""
     rng = np.random.default_rng(seed)

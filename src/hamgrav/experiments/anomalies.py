@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..core.fields import perturbing_potential
+from ..core.fields import MAX_SHELL_RB, perturbing_potential
 from ..core.model import evaluate_field
 from ..fit.estimator import truth_shell_metric
 from .common import (
@@ -78,7 +78,11 @@ class AnomaliesExperimentConfig(CampaignConfig):
     cv_sh: bool = cv_sh_option()
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     shells_rb: tuple[float, ...] = option(
-        (1.03, 1.05, 1.1, 1.2), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
+        (1.03, 1.05, 1.1, 1.2),
+        "Evaluation shells [R_B].",
+        at_least=1.0,
+        at_most=MAX_SHELL_RB,
+        nonempty=True,
     )
 
 

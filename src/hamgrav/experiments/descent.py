@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.fields import MAX_SHELL_RB
 from ..core.model import TRUTH_TOLERANCE
 from ..core.propagation import propagate_scalar
 from ..errors import InputError
@@ -41,6 +42,7 @@ from .common import (
 from .config import label, option
 from .descent_report import descent_readme
 from .runner import Experiment, RunContext, RunOutput, register
+from .schema import NUMBER, Each, NonEmpty, Optional, validate
 
 __all__ = [
     "DescentExperimentConfig",
@@ -110,7 +112,11 @@ class DescentExperimentConfig(CampaignConfig):
         "with both blocks.",
     )
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
+        (1.05, 1.1, 1.2, 1.5),
+        "Evaluation shells [R_B].",
+        at_least=1.0,
+        at_most=MAX_SHELL_RB,
+        nonempty=True,
     )
 
     def check(self) -> None:
@@ -297,9 +303,23 @@ def _comparison(folder: str) -> dict:
         report = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise InputError(f"--compare-with: cannot read {path} ({exc})") from None
-    if report.get("experiment") != "descent" or report["config"].get("prior", "none") != "none":
+    validate(
+        report,
+        COMPARISON,
+        f"--compare-with: {path}",
+        "give the results folder of a descent run without the prior, as written",
+    )
+    if report["experiment"] != "descent" or report["config"].get("prior", "none") != "none":
         raise InputError(f"--compare-with: {path} is not a descent run without the prior")
     return report
+
+
+#: What the touchdown figure reads of a --compare-with run (see :mod:`.schema`).
+COMPARISON = {
+    "experiment": str,
+    "config": {"prior": Optional(str)},
+    "repetitions": NonEmpty({"seed": int, "models": Each({"misses_m": [NUMBER], "total": int})}),
+}
 
 
 register(DescentExperiment())

@@ -19,6 +19,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..bodies.interiors import INTERIORS
+from ..core.fields import MAX_SHELL_RB
 from ..errors import InputError
 from .common import (
     CampaignConfig,
@@ -61,7 +62,11 @@ class InteriorsExperimentConfig(CampaignConfig):
         30.0, "Altitude of the surface-following evaluation set [m].", above=0
     )
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
+        (1.05, 1.1, 1.2, 1.5),
+        "Evaluation shells [R_B].",
+        at_least=1.0,
+        at_most=MAX_SHELL_RB,
+        nonempty=True,
     )
 
     def check(self) -> None:

@@ -31,6 +31,7 @@ from ..bodies.catalogue import bodies_dir, check_body_name
 from ..errors import InputError
 from ..report.writer import save_figure, write_json, write_text
 from .config import ExperimentConfig
+from .schema import REPORT, render_checked, validate
 
 __all__ = [
     "Experiment",
@@ -400,12 +401,16 @@ def rerender_readme(folder: str | Path) -> Path:
         raise InputError(f"no results.json in {folder}; run the experiment first")
     try:
         report = json.loads(path.read_text())
-        experiment = get_experiment(report["experiment"])
-    except (ValueError, KeyError) as exc:
+    except ValueError as exc:
         raise InputError(f"{path} is not an experiment's results ({exc})") from None
+    fix = "restore the file (or run the experiment again)"
+    validate(report, REPORT, str(path), fix)
+    experiment = get_experiment(report["experiment"])
     # results written before figure names were recorded: the PNG files beside them
     report.setdefault("figures", sorted(p.name for p in folder.glob("*.png")))
-    write_readme(experiment, report, folder)
+    # rendered in memory first: a hand-edited value met while rendering leaves the old README
+    lines = render_checked(lambda r: readme_lines(experiment, r, folder), report, str(path), fix)
+    write_text(folder / "README.md", lines)
     return folder / "README.md"
 
 
@@ -415,6 +420,11 @@ NOTES_FILE = "NOTES.md"
 
 def write_readme(experiment: Experiment, report: dict, folder: Path) -> None:
     """README.md of ``report`` (its tables, the command, the configuration) into ``folder``."""
+    write_text(folder / "README.md", readme_lines(experiment, report, folder))
+
+
+def readme_lines(experiment: Experiment, report: dict, folder: Path) -> list[str]:
+    """The lines of README.md of ``report`` (the notes file is read from ``folder``)."""
     figures = report.get("figures", [])
     n = len(report["repetitions"])
     header = [
@@ -447,4 +457,4 @@ def write_readme(experiment: Experiment, report: dict, folder: Path) -> None:
     config = report["config"]
     lines += ["", "## Configuration", "", "| option | value |", "|---|---|"]
     lines += [f"| {k} | {v} |" for k, v in config.items()]
-    write_text(folder / "README.md", lines)
+    return lines

@@ -34,6 +34,7 @@ from matplotlib.figure import Figure
 
 from ..bodies.catalogue import load_body
 from ..bodies.interiors import INTERIORS, build_truth
+from ..core.fields import MAX_SHELL_RB
 from ..errors import InputError, PropagationError
 from ..fit.estimator import PRESETS, preset
 from ..fit.selection import RULES, choose
@@ -161,7 +162,7 @@ class SwarmExperimentConfig(ExperimentConfig):
         30.0, "Altitude of the surface-following evaluation set [m].", above=0
     )
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.2), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
+        (1.05, 1.2), "Evaluation shells [R_B].", at_least=1.0, at_most=MAX_SHELL_RB, nonempty=True
     )
 
     def check(self) -> None:

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.fields import model_perturbing_potential, perturbing_potential
+from ..core.fields import MAX_SHELL_RB, model_perturbing_potential, perturbing_potential
 from ..core.model import evaluate_field
 from ..core.uncertainty import potential_gradient
 from ..fit.covariance import RANK_THRESHOLD, calibration, normal_system
@@ -63,7 +63,11 @@ class UncertaintyExperimentConfig(CampaignConfig):
     lm_iterations: int = lm_iterations_option("LM iteration cap of each network member.")
     harmonic: float = harmonic_option()
     shells_rb: tuple[float, ...] = option(
-        (1.05, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
+        (1.05, 1.2, 1.5),
+        "Evaluation shells [R_B].",
+        at_least=1.0,
+        at_most=MAX_SHELL_RB,
+        nonempty=True,
     )
     altitude_m: float = option(
         30.0, "Altitude of the surface-following evaluation set [m].", above=0

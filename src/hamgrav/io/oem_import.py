@@ -220,6 +220,7 @@ def import_oem(
                     f"{name!r} has {have!r}; import it with the body it was simulated for"
                 )
     first = next((c for c in comments if c), {})
+    check_one_frame(paths, comments)
     erfa_notes: set = set()
     messages = [_quiet_erfa(lambda p=p: _read(p), erfa_notes) for p in paths]
 
@@ -254,7 +255,8 @@ def import_oem(
             if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
                 raise DatasetError(f"{path}: a state is not finite")
             covs = [c.matrix for c in seg.covariances]
-            segments.append((path, Track(path, traj, kind, epochs, pos, vel), covs))
+            track = Track(path, traj, kind, epochs, pos, vel)
+            segments.append((path, track, covs, [c.epoch for c in seg.covariances]))
 
     epoch_source = "--epoch" if epoch else "the epoch in the files' hamgrav COMMENT lines"
     epoch = epoch or first.get("epoch")
@@ -282,6 +284,7 @@ def import_oem(
                         f"{seg[0]}: a covariance block has a negative or non-finite variance "
                         "on its diagonal; fix the file, or pass --sigma-r [m] and --sigma-v [m/s]"
                     )
+                check_covariances(seg[0], seg[2], seg[3])
             mats = np.asarray(covs, dtype=float) * 1e6  # km^2, km^2/s, km^2/s^2 -> SI
             cov_r = math.sqrt(float(np.mean(np.trace(mats[:, :3, :3], axis1=1, axis2=2))) / 3)
             cov_v = math.sqrt(float(np.mean(np.trace(mats[:, 3:, 3:], axis1=1, axis2=2))) / 3)
@@ -327,6 +330,58 @@ def import_oem(
             stacklevel=2,
         )
     return arcs
+
+
+#: Most negative eigenvalue of a covariance block's correlation matrix accepted: KVN files
+#: print 7 digits or so, and rounding a positive semi-definite matrix to them moves its
+#: eigenvalues by about 1e-7; a block more negative than this is not a covariance.
+COVARIANCE_TOLERANCE = 1e-6
+
+
+def check_covariances(path: Path, matrices, epochs) -> None:
+    """Refuse covariance blocks that are not symmetric positive (semi-)definite: the noise
+    level is read from their diagonals, and a block that is no covariance at all says the
+    diagonals are not what the file claims either. Judged on the correlation matrix
+    C_ij / sqrt(C_ii C_jj), so that position and velocity blocks of very different sizes
+    weigh alike."""
+    for k, (matrix, epoch) in enumerate(zip(matrices, epochs, strict=True)):
+        c = np.asarray(matrix, dtype=float)
+        d = np.sqrt(np.where(np.diagonal(c) > 0, np.diagonal(c), 1.0))
+        r = c / np.outer(d, d)
+        where = f"{path}: covariance block {k + 1} (EPOCH {epoch})"
+        fix = "fix the file, or pass --sigma-r [m] and --sigma-v [m/s]"
+        if not np.allclose(r, r.T, rtol=0.0, atol=COVARIANCE_TOLERANCE):
+            raise InputError(f"{where} is not symmetric; a covariance is: {fix}")
+        lowest = float(np.linalg.eigvalsh(0.5 * (r + r.T))[0])
+        if lowest < -COVARIANCE_TOLERANCE:
+            raise InputError(
+                f"{where} is not positive definite (its correlation matrix has the eigenvalue "
+                f"{lowest:.3g}; a correlation beyond +-1 does that): {fix}"
+            )
+
+
+def check_one_frame(paths, comments) -> None:
+    """Refuse files of one import whose hamgrav COMMENT lines state different frame origins:
+    their positions are about different points (two campaigns of one body, recentred on
+    their own truths), and one origin for all would shift some of them without a word."""
+    stated = [(p, c["origin_m"]) for p, c in zip(paths, comments, strict=True) if "origin_m" in c]
+    if not stated:
+        return
+    origin = stated[0][1]
+    other = [(p, o) for p, o in stated if math.dist(o, origin) > 1e-6]  # round-off: 1 um
+    if other:
+        same = [str(p) for p, o in stated if math.dist(o, origin) <= 1e-6]
+        apart = max(math.dist(o, origin) for _, o in other)
+        raise InputError(
+            f"the files are in frames of different origins ({apart:.3g} m apart): "
+            f"{', '.join(same)} at {_point(origin)} m; "
+            + "; ".join(f"{p} at {_point(o)} m" for p, o in other)
+            + " (mesh frame); import the files of each frame separately"
+        )
+
+
+def _point(xyz) -> str:
+    return "(" + ", ".join(f"{v:.6g}" for v in xyz) + ")"
 
 
 def _kind_of(message) -> str:

@@ -14,7 +14,9 @@ Everything after that is shared and done here once:
   one arc, and all runs must then have the same length.
 - Checks. States beyond :data:`~hamgrav.io.arcs.MAX_STATE` synchronous radii, epochs that do
   not increase, samples inside the shape (deeper than :data:`INSIDE_TOLERANCE_RB`) are
-  refused; every sample farther than :data:`FAR_RB` Brillouin radii is warned about.
+  refused; every sample farther than :data:`FAR_RB` Brillouin radii is warned about. The
+  velocities of each file must be the rate of change of its positions
+  (:func:`check_velocities`): a file with positions in km and velocities in m/s is refused.
 
 Imported arcs have no truth: ``true_states`` are NaN, the truth mascon set is empty and
 ``interior`` is ``"none"`` (:attr:`Arcs.has_truth` is False).
@@ -44,6 +46,7 @@ __all__ = [
     "Track",
     "check_arc_options",
     "check_noise",
+    "check_velocities",
     "epoch_zero",
     "rotation_zero",
     "tracks_to_arcs",
@@ -192,6 +195,8 @@ def tracks_to_arcs(
         with np.errstate(invalid="ignore"):
             largest = float(np.max(np.abs(state)))
         if not largest <= MAX_STATE:  # also NaN from an overflow in the conversion
+            # velocities in other units than the positions are the likelier cause: name it
+            check_velocities([track], t0, max_gap_s)
             raise DatasetError(
                 f"{track.source}: a state of {largest:.3g} synchronous radii (canonical) is not "
                 f"tracking of body {name!r} (at most {MAX_STATE:g}); check the file's units "
@@ -240,6 +245,8 @@ def tracks_to_arcs(
         float(units.to_length(float(sigma_r_m))),
         centre_hint,
     )
+    # after the positions' own checks, which name a unit error of the positions more directly
+    check_velocities(tracks, t0, max_gap_s)
     rotated = rotation is not None and "inertial" in frames
     known = ("source", "files", "frames", "rotation")
     config = {
@@ -274,6 +281,62 @@ def tracks_to_arcs(
         config=config,
         body=replace(body, origin_m=tuple(float(v) for v in origin)).record(),
     )
+
+
+#: Velocities this many times the positions' rate of change, or less than its inverse, are
+#: refused: unit mix-ups are factors of 1000 (km and m) or more (per hour, per day), while
+#: on a circular path turning by theta a step, the chord is tan(theta/2) / (theta/2) times
+#: the trapezoidal velocity step: 1.10 at 60 degrees a step, 10 only at 172 degrees.
+VELOCITY_SCALE_LIMIT = 10.0
+
+
+def check_velocities(tracks, t0: Time, max_gap_s: float | None) -> None:
+    """Refuse a file whose velocities are not the rate of change of its positions (the
+    redundant information of a state: a km / m mix-up between them shows here, and nowhere
+    else before the fit's residuals).
+
+    Over every step of every gap-free run of a file, the displacement d_j = r_{j+1} - r_j is
+    compared with the trapezoidal u_j = (v_j + v_{j+1}) dt_j / 2 by the least-squares scale
+    s = sum d.u / sum u.u (d = s u + noise). Position noise enters d with zero mean, so s is
+    not biased by it (a ratio of magnitudes would be: noise lengthens every |d|); its
+    standard error follows from the residuals d - s u. A file is refused when s lies beyond
+    [1 / :data:`VELOCITY_SCALE_LIMIT`, :data:`VELOCITY_SCALE_LIMIT`] by more than 3 standard
+    errors: files whose noise drowns the motion pass unjudged. Body-fixed positions and
+    rotating-frame velocities, and inertial ones, are each consistent, so the check runs on
+    the files' own frames."""
+    sums: dict = {}
+    for track in tracks:
+        seconds = (track.epochs - t0).to_value("s")
+        if len(seconds) < 2 or np.any(np.diff(seconds) <= 0):
+            continue  # refused with its own message below
+        r, v = track.position_m, track.velocity_m_s
+        for run in _runs(seconds, max_gap_s):
+            if run.stop - run.start < 2:
+                continue
+            dt = np.diff(seconds[run])[:, None]
+            d = np.diff(r[run], axis=0)
+            u = 0.5 * (v[run][1:] + v[run][:-1]) * dt
+            du, uu, dd, n = sums.get(track.source, (0.0, 0.0, 0.0, 0))
+            sums[track.source] = (
+                du + float(np.sum(d * u)),
+                uu + float(np.sum(u * u)),
+                dd + float(np.sum(d * d)),
+                n + d.size,
+            )
+    for source, (du, uu, dd, n) in sums.items():
+        if not (uu > 0 and n > 1):
+            continue
+        scale = du / uu
+        residual = max(dd - 2 * scale * du + scale * scale * uu, 0.0)
+        error = math.sqrt(residual / (n - 1) / uu)
+        low, high = 1.0 / VELOCITY_SCALE_LIMIT, VELOCITY_SCALE_LIMIT
+        if scale - 3 * error > high or scale + 3 * error < low:
+            ratio = 1.0 / scale if scale != 0 else math.inf
+            raise DatasetError(
+                f"{source}: its velocities are {ratio:.2g} times the rate of change of its "
+                "positions (finite differences of the samples); positions and velocities are "
+                "in different units (an OEM holds km and km/s): convert one of them"
+            )
 
 
 #: Closest sample beyond this many Brillouin radii: likely a unit error (metres read as km).

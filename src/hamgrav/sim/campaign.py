@@ -38,10 +38,16 @@ from ..bodies.interiors import (
     Truth,
     build_truth,
 )
-from ..core.arcs import Arcs
+from ..core.arcs import MAX_SEED, Arcs
 from ..errors import InputError
 from ..io.files import read_toml
-from .tracking import OrbitFamily, TrackingConfig, orbit_grid, simulate_orbits
+from .tracking import (
+    OrbitFamily,
+    TrackingConfig,
+    graze_check_points,
+    orbit_grid,
+    simulate_orbits,
+)
 
 __all__ = ["CampaignError", "Campaign", "load_campaign", "run_campaign", "simulate_campaign"]
 
@@ -150,8 +156,11 @@ class Campaign:
         if not 10 <= n_mascons <= MAX_TRUTH_MASCONS:
             fail(f"n_mascons must lie in [10, {MAX_TRUTH_MASCONS}], got {n_mascons}")
         seed = data.get("seed", 0)
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            fail(f"seed must be an integer >= 0, got {seed!r}")
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+            fail(
+                f"seed must be an integer in [0, 2**63 - 1] (seeds are stored as 64-bit "
+                f"integers), got {seed!r}"
+            )
         return cls(
             body=str(data["body"]),
             interior=interior,
@@ -161,6 +170,17 @@ class Campaign:
             tracking=tracking_config,
             frame=frame,
             contrast=float(contrast),
+        )
+
+    def memory_parts(self) -> dict[str, float]:
+        """The largest arrays of its simulation [bytes] (see :mod:`hamgrav.sizing`): checked
+        against the memory there is before it starts, since each bound of the campaign can
+        hold while their product (orbits x arcs x samples) cannot."""
+        from ..sizing import campaign_bytes
+
+        t = self.tracking
+        return campaign_bytes(
+            len(self.families), t.arcs_per_orbit, t.samples_per_arc, graze_check_points(t)
         )
 
     def as_dict(self) -> dict:

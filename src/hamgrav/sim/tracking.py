@@ -135,6 +135,15 @@ class TrackingConfig:
             )
 
 
+#: Step of the graze check [canonical time]: fine enough to see a graze.
+GRAZE_CHECK_STEP = 0.005
+
+
+def graze_check_points(tracking: TrackingConfig) -> int:
+    """Points of an orbit's dense graze-check grid over its tracking window."""
+    return int(2.0 * math.pi * tracking.window_spin_periods / GRAZE_CHECK_STEP) + 1
+
+
 def orbit_grid(count: int, radius_rb: tuple[float, float], inclination_deg: tuple[float, float]):
     """``count`` orbit families on a radius x inclination grid spanning the given ranges.
 
@@ -276,8 +285,7 @@ def simulate_orbits(
     for k, family in enumerate(families):
         starts = arc_start_times(rng, tracking.arcs_per_orbit, window, arc_offsets[-1])
         sample_times = (starts[:, None] + arc_offsets[None, :]).ravel()
-        # Dense check grid: about 0.005 canonical time units, fine enough to see a graze.
-        check = np.linspace(0.0, window, int(window / 0.005) + 1)
+        check = np.linspace(0.0, window, graze_check_points(tracking))
         grid = np.unique(np.concatenate([check, sample_times]))
         where = np.searchsorted(grid, sample_times)
         for attempt in range(tracking.max_redraws):  # noqa: B007 (kept: redraw count)
