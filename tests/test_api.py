@@ -53,5 +53,11 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     section = text[text.index("## Use from Python") :]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     monkeypatch.chdir(tmp_path)
-    exec(compile(code, "README.md", "exec"), {})
-    assert (tmp_path / "sh4.h5").stat().st_size > 0
+    scope = {}
+    exec(compile(code, "README.md", "exec"), scope)
+    assert (tmp_path / "sh.h5").stat().st_size > 0
+    # the example shows a fit that beats no correction on every set it prints
+    fit, truth, sets, hg = scope["fit"], scope["truth"], scope["sets"], scope["hg"]
+    errors = hg.field_errors(fit.model_, fit.params_, truth.mascons, sets)
+    assert max(errors.values()) < 0.5, errors
+    assert fit.diagnostics_["relative_cost"] < 0.5 and fit.diagnostics_["improved"]
