@@ -304,7 +304,12 @@ def _body_for(spec: str | None, arcs=None, fitted=None):
                 f"--body {spec} has {name} {getattr(body, name)!r} {unit}, the model "
                 f"{getattr(fitted, name)!r} {unit}; give the body the model was fitted for"
             )
-    return replace(body, origin_m=tuple(float(v) for v in fitted.body_origin_m))
+    return replace(
+        body,
+        gm_m3_s2=float(fitted.gm_m3_s2),
+        spin_period_s=float(fitted.spin_period_s),
+        origin_m=tuple(float(v) for v in fitted.body_origin_m),
+    )
 
 
 @_command(app)
@@ -531,7 +536,9 @@ def import_spk_command(
         list[Path],
         typer.Argument(metavar="KERNELS...", help="SPICE kernels: SPKs (.bsp), PCK/FK."),
     ],
-    body_name: Annotated[str, typer.Option("--body", help="The central body (catalogue name).")],
+    body_name: Annotated[
+        str, typer.Option("--body", help="The central body: a catalogue name or a body TOML.")
+    ],
     target: Annotated[
         list[str],
         typer.Option(

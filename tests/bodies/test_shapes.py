@@ -312,6 +312,17 @@ OUTWARD = [(1, 3, 2), (1, 2, 4), (1, 4, 3), (2, 3, 4)]
             "is not consistently wound",
         ),
         ("nan", _tetrahedron_plates(OUTWARD).replace("4 0 0 1", "4 0 0 nan"), "vertex 4 has non"),
+        (
+            # an extra column is a line of another kind, not a triangle with a comment
+            "quad-facet",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4 1\n",
+            r"line 8: 'f 2 3 4 1' is not a facet line",
+        ),
+        (
+            "extra-plate-column",
+            _tetrahedron_plates(OUTWARD).replace("4 0 0 1", "4 0 0 1 7"),
+            r"'4 0 0 1 7' is not a vertex line 'index x y z'",
+        ),
         ("empty", "\n\n", "is empty"),
     ],
 )

@@ -173,3 +173,14 @@ def test_a_model_of_other_constants_than_its_body_is_refused(rock_arcs_file, tmp
     with pytest.warns(Warning, match="no hamgrav checksum"):
         with pytest.raises(DatasetError, match="differ from its recorded body's"):
             load_model(path)
+
+
+def test_a_body_given_with_rounded_constants_takes_the_arcs(rock, rock_arcs_file, tmp_path):
+    """A body whose GM differs from the arcs' by round-off fits in the arcs' units, and its
+    model file reads back (the record carries the arcs' constants, not the body's)."""
+    arcs = load_arcs(rock_arcs_file)
+    close = replace(rock, gm_m3_s2=arcs.gm_m3_s2 * (1 + 1e-13))
+    fitted = GravityEstimator("sh", degree=2, body=close).fit(arcs).fitted_
+    assert fitted.body.gm_m3_s2 == arcs.gm_m3_s2 == fitted.gm_m3_s2
+    again = load_model(save_model(fitted, tmp_path / "m.h5"))
+    assert again.body.gm_m3_s2 == arcs.gm_m3_s2

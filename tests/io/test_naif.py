@@ -38,3 +38,20 @@ def test_centre_names_and_ids_recognised_for_the_right_body_only(catalogue):
                 assert centre_is_body(centre, body) == (other == name), (centre, name)
     assert not centre_is_body("MOON", catalogue["eros"])
     assert not centre_is_body("301", catalogue["eros"])
+
+
+def test_free_text_never_names_another_body():
+    """A description is not a name: words such as 'near Earth' or 'moon' in it never make the
+    Earth, the NEAR spacecraft or the Moon the body (they once gave -93 and 301)."""
+    rock = replace(load_body("synthetic"), name="rock-2031", source={"kind": "files"})
+    for text in ("small rubble pile near Earth", "a binary asteroid moon", "Earth; Moon"):
+        assert body_naif_id(replace(rock, description=text)) is None
+        # not even when the body is a catalogue body: a description word counts only when
+        # SPICE gives it a comet's or asteroid's ID
+        catalogued = replace(rock, description=text, source={"kind": "catalogue"})
+        assert body_naif_id(catalogued) is None
+    assert not centre_is_body("EARTH", replace(rock, description="near Earth"))
+    assert not centre_is_body("399", replace(rock, description="near Earth"))
+    # a catalogue description naming a small body still gives its ID
+    comet = replace(rock, description="67P/Churyumov-Gerasimenko; a comet", source={})
+    assert body_naif_id(comet) == 1000012

@@ -299,13 +299,17 @@ def _numbers(
 ) -> np.ndarray:
     """The ``count`` whitespace-separated numbers after the first ``skip`` words of each line
     in ``rows``, as an array (len(rows), count)."""
-    if rows and len(rows[0][1].split()) == skip + count:
+    # every row must have exactly skip + count words: usecols alone would ignore extra ones
+    # (a quad 'f 1 2 3 4' read as a triangle); a split per line, not a string per number
+    widths = np.fromiter((len(line.split()) for _, line in rows), dtype=int, count=len(rows))
+    if rows and np.all(widths == skip + count):
+        text = "\n".join(line for _, line in rows)
         try:
             # numpy's C parser: a Q = 512 ICQ file (1.6 M lines) in seconds and without a
-            # Python string per number; it refuses rows of another length or a bad number,
-            # and the loop below then finds the line to name
+            # Python string per number; it refuses a bad number, and the loop below then
+            # finds the line to name
             data = np.loadtxt(
-                io.StringIO("\n".join(line for _, line in rows)),
+                io.StringIO(text),
                 dtype=kind,
                 usecols=range(skip, skip + count),
                 comments=None,

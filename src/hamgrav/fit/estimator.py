@@ -216,7 +216,13 @@ def body_with_arcs(body: Body, arcs: Arcs, what: str = "the body") -> Body:
             HamgravWarning,
             stacklevel=2,
         )
-    return replace(body, origin_m=tuple(float(v) for v in arcs.body_origin_m))
+    # the arcs' own numbers, which fix the canonical units the fit works in
+    return replace(
+        body,
+        gm_m3_s2=float(arcs.gm_m3_s2),
+        spin_period_s=float(arcs.spin_period_s),
+        origin_m=tuple(float(v) for v in arcs.body_origin_m),
+    )
 
 
 def noise_sigmas(arcs: Arcs) -> np.ndarray:
@@ -577,6 +583,11 @@ class GravityEstimator:
             raise InputError("kaula applies to spherical harmonics (term 'sh')")
         if "harmonic" in out and self.term != "network":
             raise InputError("harmonic applies to the network (term 'network')")
+        if out and self.kaula in ("truth-scan", "holdout-scan"):
+            raise InputError(
+                f"kaula {self.kaula!r} scans alpha itself; with other hyperparameters chosen by "
+                "cross-validation give kaula 'cv' (or one alpha)"
+            )
         if out and self.cv_rule not in RULES:
             raise InputError(f"cv_rule must be one of {', '.join(RULES)}, got {self.cv_rule!r}")
         if out and self.cv_group not in GROUPS:
@@ -627,6 +638,7 @@ class GravityEstimator:
         cross-validation on the training arcs (:meth:`select`); the fit is then the
         chosen estimator's (a resumed fit chooses again, reproducibly, and resumes the
         final fit)."""
+        self.selection_ = []
         if self.choices():
             return self._fit_chosen(
                 arcs,

@@ -1,10 +1,13 @@
 """NAIF IDs of bodies: how SPICE kernels and OEM CENTER_NAME lines may name the central body.
 
-A body's NAIF ID is :attr:`Body.naif_id` when set; otherwise SPICE's built-in name table
-(``bodn2c``, plus any NAIF_BODY_NAME assignments in the kernel pool) is asked for the body's
-name, then for the first clause of its description (before ``;``) and each of its words:
-the catalogue's ``67p`` is ``67P/Churyumov-Gerasimenko`` in its description, and SPICE knows
-``CHURYUMOV-GERASIMENKO`` (1000012). Bare numbers are not asked (SPICE reads ``433`` as no
+A body's NAIF ID is :attr:`Body.naif_id` when set (a body TOML's ``naif_id``); otherwise
+SPICE's built-in name table (``bodn2c``, plus any NAIF_BODY_NAME assignments in the kernel
+pool) is asked for the body's name and, for catalogue bodies only, for the first clause of
+the catalogue description (before ``;``) and each of its words: the catalogue's ``67p`` is
+``67P/Churyumov-Gerasimenko`` in its description, and SPICE knows ``CHURYUMOV-GERASIMENKO``
+(1000012). A description word counts only when SPICE gives it a small body's ID (comets and
+asteroids: :data:`SMALL_BODY_IDS`), so that free text such as "near Earth" never makes the
+Earth or the NEAR spacecraft the body. Bare numbers are not asked (SPICE reads ``433`` as no
 body, and an asteroid number is not its NAIF ID).
 """
 
@@ -14,7 +17,11 @@ import re
 
 from ..bodies.catalogue import Body
 
-__all__ = ["body_naif_id", "centre_is_body", "naif_name", "naif_code"]
+__all__ = ["SMALL_BODY_IDS", "body_naif_id", "centre_is_body", "naif_name", "naif_code"]
+
+#: NAIF IDs of comets (1000001...) and asteroids (2000001..., and the provisional 3000000...,
+#: 5xxxxxxx for satellites of asteroids excluded): the bodies hamgrav is for.
+SMALL_BODY_IDS = range(1_000_000, 50_000_000)
 
 
 def naif_code(name: str) -> int | None:
@@ -37,14 +44,14 @@ def naif_name(code: int) -> str | None:
     return str(name) if found else None
 
 
-def _candidates(body: Body) -> list[str]:
-    """Names the body may go by, most specific first (see the module docstring)."""
-    names = [body.name]
+def _description_names(body: Body) -> list[str]:
+    """Names a catalogue body's description gives it (see the module docstring)."""
+    if body.source.get("kind", "catalogue") != "catalogue":
+        return []
     clause = body.description.split(";")[0].strip()
-    if clause:
-        names.append(clause)
-        names += [w for w in re.split(r"[\s/]+", clause) if w and not w.isdecimal()]
-    return names
+    if not clause:
+        return []
+    return [clause] + [w for w in re.split(r"[\s/]+", clause) if w and not w.isdecimal()]
 
 
 def body_naif_id(body: Body) -> int | None:
@@ -52,9 +59,12 @@ def body_naif_id(body: Body) -> int | None:
     SPICE knows one."""
     if body.naif_id is not None:
         return int(body.naif_id)
-    for name in _candidates(body):
+    code = naif_code(body.name)
+    if code is not None:
+        return code
+    for name in _description_names(body):
         code = naif_code(name)
-        if code is not None:
+        if code is not None and code in SMALL_BODY_IDS:
             return code
     return None
 
