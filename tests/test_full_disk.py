@@ -74,7 +74,7 @@ def _why_not(kind: str) -> str | None:
             return "no resource module (not a POSIX system): no file-size limit"
         return None
     if _unshare() is None:
-        return "cannot mount a tmpfs in a mount namespace here (unshare --mount not allowed)"
+        return "cannot mount a tmpfs in a mount namespace here (no unshare, or it may not mount)"
     return None
 
 
