@@ -152,7 +152,7 @@ class _CommandSignals:
     """While a command runs, SIGTERM raises :class:`Terminated` (in the main thread, unless
     SIGTERM is ignored or already handled), and a KeyboardInterrupt or Terminated that
     Python could not raise (it arrived in a destructor or a weakref callback, where Python
-    prints "Exception ignored" and carries on: about one Ctrl-C in 50 during a fit) is kept
+    prints "Exception ignored" and carries on: one of 50 kills of the kill test) is kept
     quietly and raised at the fit's next iteration by :func:`_stop_if_signalled`. What was
     there before comes back after."""
 
@@ -162,8 +162,15 @@ class _CommandSignals:
         main = threading.current_thread() is threading.main_thread()
         if main and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
             self.previous = signal.signal(signal.SIGTERM, _raise_terminated)
-        self.hook = sys.unraisablehook
-        sys.unraisablehook = _keep_swallowed
+        previous = self.hook = sys.unraisablehook
+
+        def keep_swallowed(unraisable):
+            if isinstance(unraisable.exc_value, KeyboardInterrupt):
+                _swallowed[:] = [unraisable.exc_value]
+            else:
+                previous(unraisable)
+
+        sys.unraisablehook = keep_swallowed
         return self
 
     def __exit__(self, *exc):
@@ -175,13 +182,6 @@ class _CommandSignals:
 
 #: The KeyboardInterrupt or Terminated that Python swallowed during the command, if any.
 _swallowed: list[BaseException] = []
-
-
-def _keep_swallowed(unraisable) -> None:
-    if isinstance(unraisable.exc_value, KeyboardInterrupt):
-        _swallowed[:] = [unraisable.exc_value]
-    else:
-        sys.__unraisablehook__(unraisable)
 
 
 def _stop_if_signalled() -> None:
