@@ -5,7 +5,10 @@ computed. Errors caused by input, data or environment (:class:`hamgrav.errors.Ha
 are printed in one line and exit with status 2 (so do the option errors of typer itself);
 warnings (:class:`hamgrav.errors.HamgravWarning`) in one line too. Anything else is a bug: it
 is reported in one line asking for a report and exits with status 70; ``hamgrav --debug``
-shows its traceback instead. Ctrl-C exits with status 130 and says what was kept.
+shows its traceback instead. Ctrl-C exits with status 130 and SIGTERM (what a batch
+scheduler or ``kill`` sends) with status 143 (128 + the signal), each saying what was kept. A
+disk that refuses a write (full, quota, size limit, I/O error) is one line (status 2) naming
+the file, and leaves no part of the file behind.
 """
 
 from __future__ import annotations
@@ -15,32 +18,56 @@ import sys
 import threading
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where it arrives like Ctrl-C's KeyboardInterrupt, so that the same
+    clean-up runs (temporary files removed, the last complete checkpoint kept)."""
+
+    signum = signal.SIGTERM
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated
+
+
+def _stopped(exc: BaseException) -> tuple[str, int]:
+    """How a command was stopped (for its message) and its exit status: 128 + the signal."""
+    if isinstance(exc, Terminated):
+        return "terminated (SIGTERM)", 128 + signal.SIGTERM
+    return "interrupted", 128 + signal.SIGINT
+
+
 class _DeferInterrupt:
-    """Hold Ctrl-C while the libraries load (a second or two), then exit with one line.
+    """Hold Ctrl-C and SIGTERM while the libraries load (a second or two), then exit with
+    one line.
 
     A KeyboardInterrupt raised inside an import is not reliably seen: some libraries import
     their optional dependencies under ``except BaseException`` and swallow it, so a Ctrl-C
     at the wrong moment was simply lost and the command ran on. Only the main thread can
-    install the handler; an ignored SIGINT (a background job) stays ignored.
+    install the handler; an ignored signal (a background job) stays ignored.
     """
 
     def __enter__(self):
-        self.hit = False
-        self.previous = None
-        main = threading.current_thread() is threading.main_thread()
-        if main and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-            self.previous = signal.signal(signal.SIGINT, self._hold)
+        self.hit = None
+        self.previous = {}
+        if threading.current_thread() is threading.main_thread():
+            for signum, default in (
+                (signal.SIGINT, signal.default_int_handler),
+                (signal.SIGTERM, signal.SIG_DFL),
+            ):
+                if signal.getsignal(signum) is default:
+                    self.previous[signum] = signal.signal(signum, self._hold)
         return self
 
     def _hold(self, signum, frame):
-        self.hit = True
+        self.hit = self.hit or signum
 
     def __exit__(self, *exc):
-        if self.previous is not None:
-            signal.signal(signal.SIGINT, self.previous)
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler)
         if self.hit or (exc[0] is not None and issubclass(exc[0], KeyboardInterrupt)):
-            sys.stderr.write("interrupted while starting; nothing was done\n")
-            raise SystemExit(130)
+            how = "terminated (SIGTERM)" if self.hit == signal.SIGTERM else "interrupted"
+            sys.stderr.write(f"{how} while starting; nothing was done\n")
+            raise SystemExit(128 + (self.hit or signal.SIGINT))
         return False
 
 
@@ -64,8 +91,15 @@ with _DeferInterrupt():
 
     from .bodies.catalogue import load_body
     from .bodies.interiors import DEFAULT_TRUTH_MASCONS
-    from .errors import HamgravError, HamgravWarning, InputError
-    from .io.files import check_output, check_writable_folder
+    from .errors import DiskError, HamgravError, HamgravWarning, InputError
+    from .io.files import (
+        check_output,
+        check_writable_folder,
+        disk_error,
+        make_folder,
+        remove_partial_files,
+        written_together,
+    )
 
 # Help texts are plain text: their units in brackets ([m], [deg]) are not rich markup.
 app = typer.Typer(
@@ -114,29 +148,74 @@ def _warn(message, category, filename, lineno, file=None, line=None) -> None:
         err.print(escape(warnings.formatwarning(message, category, filename, lineno, line)))
 
 
+class _CommandSignals:
+    """While a command runs, SIGTERM raises :class:`Terminated` (in the main thread, unless
+    SIGTERM is ignored or already handled), and a KeyboardInterrupt or Terminated that
+    Python could not raise (it arrived in a destructor or a weakref callback, where Python
+    prints "Exception ignored" and carries on: one of 50 kills of the kill test) is kept
+    quietly and raised at the fit's next iteration by :func:`_stop_if_signalled`. What was
+    there before comes back after."""
+
+    def __enter__(self):
+        self.previous = None
+        _swallowed.clear()
+        main = threading.current_thread() is threading.main_thread()
+        if main and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+            self.previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        previous = self.hook = sys.unraisablehook
+
+        def keep_swallowed(unraisable):
+            if isinstance(unraisable.exc_value, KeyboardInterrupt):
+                _swallowed[:] = [unraisable.exc_value]
+            else:
+                previous(unraisable)
+
+        sys.unraisablehook = keep_swallowed
+        return self
+
+    def __exit__(self, *exc):
+        sys.unraisablehook = self.hook
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
+        return False
+
+
+#: The KeyboardInterrupt or Terminated that Python swallowed during the command, if any.
+_swallowed: list[BaseException] = []
+
+
+def _stop_if_signalled() -> None:
+    """Raise a KeyboardInterrupt or Terminated that Python swallowed (see
+    :class:`_CommandSignals`)."""
+    if _swallowed:
+        raise _swallowed.pop()
+
+
 def _command(typer_app: typer.Typer, *args, **kwargs):
     """``typer_app.command(*args, **kwargs)`` with hamgrav's error handling: user errors in
-    one line (status 2), Ctrl-C in one line (status 130), bugs reported as bugs (status 70,
-    the traceback with --debug)."""
+    one line (status 2; a disk that refuses a write too), Ctrl-C and SIGTERM in one line
+    (status 130 and 143), bugs reported as bugs (status 70, the traceback with --debug)."""
 
     def register(func):
         @functools.wraps(func)
         def run(*a, **k):
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), _CommandSignals():
                 warnings.simplefilter("always", HamgravWarning)
                 warnings.showwarning = _warn
                 try:
                     return func(*a, **k)
                 except HamgravError as exc:
                     _fail(exc)
-                except KeyboardInterrupt:
+                except KeyboardInterrupt as exc:
+                    remove_partial_files()
+                    how, status = _stopped(exc)
                     err.print(
-                        "interrupted; no file is left half-written (hamgrav writes each file "
+                        f"{how}; no file is left half-written (hamgrav writes each file "
                         "whole or not at all)",
                         highlight=False,
                         soft_wrap=True,
                     )
-                    raise typer.Exit(code=130) from None
+                    raise typer.Exit(code=status) from None
                 except (
                     typer.Exit,
                     typer.Abort,
@@ -146,6 +225,9 @@ def _command(typer_app: typer.Typer, *args, **kwargs):
                 ):
                     raise
                 except Exception as exc:
+                    disk = disk_error(exc, getattr(exc, "filename", None) or "a file")
+                    if disk is not None:  # a write outside hamgrav's own (a library's cache)
+                        _fail(disk)
                     if _debug["on"]:
                         raise
                     err.print(
@@ -249,8 +331,7 @@ def _output_folder(path: Path, name: str) -> Path:
     if path.exists() and not path.is_dir():
         raise InputError(f"{name} {path} exists and is not a folder; give a folder path")
     check_writable_folder(path, name)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    return make_folder(path)
 
 
 def _command_line(words: list[str], options: dict) -> str:
@@ -426,13 +507,14 @@ def simulate(
         arcs = simulate_campaign(
             config, progress=lambda done, total: progress.update(task, completed=done)
         )
-    save_arcs(arcs, output)
-    if oem is not None:
-        export_oem_by_trajectory(arcs, _output_folder(oem, "--oem"))
-    if spk is not None:
-        from .io.spk import write_spk
+    with written_together():  # the arcs file and its exports, or none of them
+        save_arcs(arcs, output)
+        if oem is not None:
+            export_oem_by_trajectory(arcs, _output_folder(oem, "--oem"))
+        if spk is not None:
+            from .io.spk import write_spk
 
-        write_spk(arcs, spk, load_body(config.body))
+            write_spk(arcs, spk, load_body(config.body))
     console.print(
         f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples "
         f"({arcs.n_arcs * arcs.samples_per_arc * 6} scalars) to {output}"
@@ -909,6 +991,7 @@ def fit(
             task = progress.add_task("fitting", total=total)
 
             def on_iteration(it, record):
+                _stop_if_signalled()
                 text = " ".join(f"{k} {v:.3e}" for k, v in record.items() if isinstance(v, float))
                 progress.update(task, completed=it, description=f"fitting [{text}]")
 
@@ -923,30 +1006,20 @@ def fit(
                     checkpoint=lambda th, st: save_checkpoint(ckpt, th, st, identity),
                     resume=resume_state,
                 )
-    except KeyboardInterrupt:
-        if ckpt.exists():
-            err.print(
-                f"interrupted; the last checkpoint is kept: resume with the same command "
-                f"and --resume ({ckpt})",
-                highlight=False,
-                soft_wrap=True,
-            )
-        else:
-            err.print(
-                "interrupted before the first checkpoint; nothing was saved: run the same "
-                "command again",
-                highlight=False,
-                soft_wrap=True,
-            )
-        raise typer.Exit(code=130) from None
+    except (KeyboardInterrupt, DiskError) as exc:
+        _fit_stopped(exc, ckpt, output, written=False)
     fitted = estimator.fitted_
     fitted.solver["arcs_file"] = arcs_path
     fitted = replace(fitted, training={**fitted.training, "arcs_file": arcs_path})
     if init is not None:
         this = {"stage": len(stages), **_stage_of(fitted.solver), "warm_started": True}
         fitted = replace(fitted, stages=[*stages, this])
-    save_model(fitted, output)
-    ckpt.unlink(missing_ok=True)
+    before = _file_id(output)
+    try:
+        save_model(fitted, output)
+        ckpt.unlink(missing_ok=True)
+    except (KeyboardInterrupt, DiskError) as exc:
+        _fit_stopped(exc, ckpt, output, written=_file_id(output) not in (None, before))
     result = estimator.result_
     diag = estimator.diagnostics_
     console.print(
@@ -1011,6 +1084,60 @@ def _check_shells(radii) -> None:
             "farther out the perturbing potential is below float64 round-off of the total; "
             "give shells within 1000 R_B"
         )
+
+
+def _file_id(path: Path) -> tuple | None:
+    """What tells the file at ``path`` from one written over it (None: no file)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino, st.st_mtime_ns
+
+
+def _checkpoint_point(ckpt: Path) -> str:
+    """Where the fit kept in checkpoint ``ckpt`` stands, in words (e.g. "Adam step 75")."""
+    from .io.models import load_checkpoint
+
+    try:
+        _, state = load_checkpoint(ckpt)
+    except HamgravError as exc:  # not expected: checkpoints are written whole or not at all
+        return f"unreadable: {exc}"
+    where = []
+    if "member" in state:
+        where.append(f"network {int(state['member']) + 1} of the ensemble")
+    if "step" in state:
+        where.append(f"Adam step {int(state['step'])}")
+    elif "iteration" in state:
+        where.append(f"LM iteration {int(state['iteration'])}")
+    return ", ".join(where) or "its solver's last state"
+
+
+def _fit_stopped(exc: BaseException, ckpt: Path, output: Path, written: bool) -> None:
+    """End a fit stopped by Ctrl-C, SIGTERM or a disk error, in one line that says what was
+    kept: the model when this run ``written`` it whole, else the last complete checkpoint,
+    else nothing (and then nothing blocks a plain rerun)."""
+    remove_partial_files()
+    how, status = _stopped(exc)
+    if written:  # the model is complete: its checkpoint is stale
+        ckpt.unlink(missing_ok=True)
+        kept = f"the fit is complete and its model written: {output}"
+    elif ckpt.exists():
+        kept = (
+            f"the last checkpoint is kept ({_checkpoint_point(ckpt)}): continue with the same "
+            f"command and --resume ({ckpt})"
+        )
+    else:
+        kept = None
+    if isinstance(exc, DiskError):  # the disk's error, then what was kept
+        kept = kept or "the fit had no checkpoint yet: nothing was saved, run the command again"
+        raise DiskError(exc.path, exc.reason, f"{exc.fix}; {kept}") from None
+    if kept is None:
+        text = f"{how} before the first checkpoint; nothing was saved: run the same command again"
+    else:
+        text = f"{how}; {kept}"
+    err.print(text, highlight=False, soft_wrap=True)
+    raise typer.Exit(code=status) from None
 
 
 def _check_body_model(arcs, fitted, source, model: str, fix: str) -> None:
@@ -1784,5 +1911,14 @@ def demo(
     )
 
 
+def main(args: list[str] | None = None) -> None:
+    """The ``hamgrav`` console script: :data:`app`, with Ctrl-C and SIGTERM held while typer
+    builds the command from its functions (as while the libraries load), where a Ctrl-C
+    showed typer's traceback."""
+    with _DeferInterrupt():
+        command = typer.main.get_command(app)
+    command(args, prog_name="hamgrav")
+
+
 if __name__ == "__main__":
-    app()
+    main()

@@ -18,6 +18,7 @@ __all__ = [
     "DatasetError",
     "SimulationError",
     "PropagationError",
+    "DiskError",
     "HamgravWarning",
 ]
 
@@ -44,6 +45,22 @@ class SimulationError(HamgravError, RuntimeError):
 
 class PropagationError(HamgravError, RuntimeError):
     """A trajectory could not be propagated under a model (it diverged or became stiff)."""
+
+
+class DiskError(HamgravError, RuntimeError):
+    """A file could not be written because of the disk or its limits (full, over quota, a
+    file-size limit, an I/O error, read-only), not because of hamgrav or its input.
+
+    ``path`` is the file that was being written (never its temporary ``.part``), ``reason``
+    the disk's error in words with its errno name, ``fix`` what to do.
+    """
+
+    def __init__(self, path, reason: str, fix: str):
+        self.path, self.reason, self.fix = path, reason, fix
+        super().__init__(f"cannot write {path}: {reason}; {fix}")
+
+    def __reduce__(self):  # picklable (Dask workers), though __init__ takes three arguments
+        return type(self), (self.path, self.reason, self.fix)
 
 
 class HamgravWarning(UserWarning):

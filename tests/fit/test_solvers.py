@@ -626,11 +626,50 @@ def test_lm_resumes_exactly_from_a_checkpoint():
 
     full = solver.solve(_OneParameterProblem(None), np.zeros(1), checkpoint=keep)
     assert saved["state"]["lambda"] != solver.lambda0
+    resumed = solver.solve(_OneParameterProblem(None), saved["theta"], resume=saved["state"])
+    for key in ("cost", "lambda", "accepted"):
+        assert resumed.history[key] == full.history[key]
+    assert resumed.iterations == full.iterations
+    np.testing.assert_array_equal(resumed.params, full.params)
+    # a checkpoint of an older hamgrav holds the damping alone: the count starts afresh
+    older = {k: saved["state"][k] for k in ("solver", "iteration", "lambda")}
     resumed = replace(solver, max_iter=2).solve(
-        _OneParameterProblem(None), saved["theta"], resume=saved["state"]
+        _OneParameterProblem(None), saved["theta"], resume=older
     )
     assert resumed.history["lambda"] == full.history["lambda"][2:]
     np.testing.assert_array_equal(resumed.params, full.params)
+
+
+@pytest.mark.parametrize("gate", [False, True])
+def test_lm_with_validation_resumes_from_any_checkpoint_as_if_never_stopped(gate):
+    """The whole state is in the checkpoint (iteration count, best validation iterate, stale
+    count, history): resumed from any of them, the fit ends where the uninterrupted one
+    ends (a checkpoint of the damping alone started the count afresh and forgot the best
+    iterate, which a killed fit's kill test found)."""
+
+    def rises_falls_rises_falls(t):
+        return 1.0 if t < 0.05 else 2.0 if t < 0.2 else 0.5 if t < 0.5 else 1.5 if t < 0.8 else 0.1
+
+    solver = LevenbergMarquardt(lambda0=10.0, max_iter=8, rtol=0.0, patience=3,
+                                validation_gate=gate)  # fmt: skip
+    split = {"train": np.array([0]), "validation": np.array([1])}
+    saved = []
+    full = solver.solve(
+        _OneParameterProblem(rises_falls_rises_falls), np.zeros(1), **split,
+        checkpoint=lambda theta, state: saved.append((theta.copy(), state)),
+    )  # fmt: skip
+    assert len(saved) >= 2
+    for theta, state in saved:
+        resumed = solver.solve(
+            _OneParameterProblem(rises_falls_rises_falls), theta, **split, resume=state
+        )
+        np.testing.assert_array_equal(resumed.params, full.params)
+        assert (resumed.iterations, resumed.best_iteration) == (
+            full.iterations,
+            full.best_iteration,
+        )
+        assert resumed.history["validation"] == full.history["validation"]
+        assert resumed.outcome == full.outcome
 
 
 def test_a_fit_capped_or_converged_forms_no_normals_at_a_last_iterate_it_does_not_return():

@@ -29,6 +29,7 @@ import numpy as np
 from .. import __version__
 from ..bodies.catalogue import bodies_dir, check_body_name
 from ..errors import InputError
+from ..io.files import make_folder, written_together
 from ..report.writer import save_figure, write_json, write_text
 from .config import ExperimentConfig
 from .schema import REPORT, render_checked, validate
@@ -381,14 +382,17 @@ def run_experiment(
 
 
 def write_report(experiment: Experiment, report: dict, artefacts: dict, folder: Path) -> None:
-    """results.json, README.md and the figures of ``report`` into ``folder``."""
-    folder.mkdir(parents=True, exist_ok=True)
+    """results.json, README.md and the figures of ``report`` into ``folder``: all of them or,
+    when a write fails (a full disk, an interrupt), none (a folder created for them is
+    removed again)."""
     figures = experiment.figures(report, artefacts)
     report["figures"] = list(figures)
-    write_json(folder / "results.json", report)
-    for name, fig in figures.items():
-        save_figure(fig, folder / name)
-    write_readme(experiment, report, folder)
+    with written_together():
+        make_folder(folder)
+        write_json(folder / "results.json", report)
+        for name, fig in figures.items():
+            save_figure(fig, folder / name)
+        write_readme(experiment, report, folder)
 
 
 def rerender_readme(folder: str | Path) -> Path:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import dataclass
@@ -11,7 +12,7 @@ import scipy.linalg
 
 from ..core.problem import ArcProblem
 from ..core.terms import SphericalHarmonics, sh_index
-from ..errors import PropagationError
+from ..errors import DatasetError, PropagationError
 from .base import Outcome, Solver, SolveResult
 
 __all__ = ["LevenbergMarquardt", "kaula_diagonal"]
@@ -105,7 +106,12 @@ class LevenbergMarquardt(Solver):
             best = (history["validation"][0], theta.copy(), 0, normals)
         outcome, message, it, n_accepted = Outcome.ITERATION_CAP, "iteration cap reached", 0, 0
         stale = 0  # accepted steps since the best validation cost
-        for it in range(1, self.max_iter + 1):
+        if resume is not None and "history" in resume:
+            it, cost, initial_cost, history, best, stale, n_accepted = self._restore(
+                problem, resume, train, known, normals
+            )
+        first = it + 1
+        for it in range(first, self.max_iter + 1):
             scaling = np.diag(ata)
             if self.damping_floor > 0:
                 scaling = np.maximum(scaling, self.damping_floor * scaling.max())
@@ -176,7 +182,22 @@ class LevenbergMarquardt(Solver):
             if accepted:
                 atr, ata = trial_atr, trial_ata
                 if checkpoint is not None:
-                    checkpoint(theta, {"solver": self.name, "iteration": it, "lambda": lam})
+                    checkpoint(
+                        theta,
+                        {
+                            "solver": self.name,
+                            "iteration": it,
+                            "lambda": lam,
+                            "cost": np.float64(cost),
+                            "initial_cost": np.float64(initial_cost),
+                            "best_val": np.float64(best[0]),
+                            "best_theta": best[1],
+                            "best_iteration": best[2],
+                            "stale": stale,
+                            "accepted_steps": n_accepted,
+                            "history": json.dumps(history),
+                        },
+                    )
         best_it = best[2] if has_val else it
         if has_val:
             theta, normals = best[1], best[3]
@@ -194,3 +215,42 @@ class LevenbergMarquardt(Solver):
             normals=normals,
             params_cost=None if normals is None else float(normals.cost),
         )
+
+    def _restore(self, problem, resume: dict, train, known, normals):
+        """The iteration, costs, history, best iterate, stale count and accepted steps of a
+        checkpoint, so that a resumed fit takes exactly the steps the interrupted one would
+        have (a checkpoint of an older hamgrav holds only the damping: its fit resumes from
+        the iterate with a fresh count). ``normals``: those at the checkpoint's iterate."""
+        try:
+            it = int(resume["iteration"])
+            best_it = int(resume["best_iteration"])
+            best_theta = np.asarray(resume["best_theta"], dtype=float)
+            if not (
+                0 <= best_it <= it
+                and best_theta.shape == normals.params.shape
+                and np.all(np.isfinite(best_theta))
+            ):
+                raise DatasetError(
+                    "the checkpoint's LM state does not fit this run (its iteration or best "
+                    "iterate); remove the checkpoint and fit again without --resume"
+                )
+            if best_it == it:  # the iterate itself, whose normals are already formed
+                best_normals = normals
+            else:  # formed again at the best iterate, as the interrupted fit had them
+                best_normals = problem.arc_normals(best_theta, train, known=known)
+            history = {k: list(v) for k, v in json.loads(resume["history"]).items()}
+            best = (float(resume["best_val"]), best_theta, best_it, best_normals)
+            return (
+                it,
+                float(resume["cost"]),
+                float(resume["initial_cost"]),
+                history,
+                best,
+                int(resume["stale"]),
+                int(resume["accepted_steps"]),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
+            raise DatasetError(
+                f"the checkpoint's LM state cannot be read ({exc}); remove the checkpoint and "
+                "fit again without --resume"
+            ) from None

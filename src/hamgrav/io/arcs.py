@@ -36,7 +36,6 @@ from .hdf5 import (
     create,
     number_attribute,
     open_for_reading,
-    seal,
     write_array,
 )
 
@@ -57,7 +56,6 @@ def save_arcs(arcs: Arcs, path: str | os.PathLike) -> Path:
     path = Path(path)
     with atomic_path(path) as tmp:
         _write(arcs, tmp)
-        seal(tmp)
     return path
 
 

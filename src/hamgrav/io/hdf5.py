@@ -9,6 +9,11 @@ a single flipped bit in a file's global heap made the HDF5 library loop forever 
 Every non-empty dataset is also written with the fletcher32 filter, so that HDF5 refuses a
 damaged dataset of a file whose user block was lost.
 
+A file is built in memory and written to its path with plain writes (:func:`create`): HDF5
+2.0 writing to a full disk printed its errors from the object destructors and then crashed
+the interpreter (a segmentation fault in ``File.close``), so HDF5 never writes to a disk
+here, and a full disk is an ordinary ``OSError`` of one write.
+
 Files written before hamgrav wrote the user block (the HDF5 signature at byte 0) are read
 with a :class:`~hamgrav.errors.HamgravWarning` that their integrity cannot be checked; every
 value is still checked by its reader. A file edited in place (with h5py, say) no longer
@@ -18,6 +23,7 @@ matches its checksum and is refused: write it again with hamgrav instead.
 from __future__ import annotations
 
 import hashlib
+import io
 import os
 import warnings
 from contextlib import contextmanager
@@ -36,7 +42,6 @@ __all__ = [
     "create",
     "number_attribute",
     "open_for_reading",
-    "seal",
     "write_array",
 ]
 
@@ -61,10 +66,22 @@ READ_ERRORS = (
 )
 
 
-def create(path: str | os.PathLike) -> h5py.File:
-    """A new HDF5 file at ``path`` (open for writing) with room for the checksum; call
-    :func:`seal` on ``path`` once the file is closed."""
-    return h5py.File(path, "w", userblock_size=USERBLOCK)
+@contextmanager
+def create(path: str | os.PathLike):
+    """Yield a new HDF5 file (open for writing, in memory); when the block ends, write it to
+    ``path`` with its checksum in the user block. The file is held in memory twice for a
+    moment (HDF5's image, then the bytes written): arcs files are tens of megabytes."""
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w", userblock_size=USERBLOCK) as f:
+        yield f
+    image = buffer.getbuffer()
+    try:
+        stamp = _MAGIC + hashlib.sha256(image[USERBLOCK:]).hexdigest().encode() + b"\n"
+        with open(path, "wb") as fh:
+            fh.write(stamp.ljust(USERBLOCK, b"\0"))
+            fh.write(image[USERBLOCK:])
+    finally:
+        image.release()
 
 
 def write_array(group: h5py.Group, name: str, data) -> None:
@@ -84,15 +101,6 @@ def _body_digest(fh) -> str:
     while chunk := fh.read(_CHUNK):
         h.update(chunk)
     return h.hexdigest()
-
-
-def seal(path: str | os.PathLike) -> None:
-    """Write the checksum of the closed file at ``path`` (made by :func:`create`) into its
-    user block."""
-    with open(path, "r+b") as fh:
-        stamp = _MAGIC + _body_digest(fh).encode() + b"\n"
-        fh.seek(0)
-        fh.write(stamp.ljust(USERBLOCK, b"\0"))
 
 
 _SIGNATURE = b"\x89HDF\r\n\x1a\n"

@@ -160,7 +160,6 @@ def save_model(fitted: FittedModel, path: str | os.PathLike) -> Path:
             _write_history(f.create_group("history"), fitted.history)
             if fitted.body is not None:
                 write_body_record(f, fitted.body)
-        hdf5.seal(tmp)
     return path
 
 

@@ -40,7 +40,7 @@ from oem.components import EphemerisSegment, HeaderSection, MetaDataSection
 from ..core.arcs import Arcs
 from ..errors import InputError
 from ..units import CanonicalUnits
-from .files import atomic_path
+from .files import atomic_path, make_folder, written_together
 
 __all__ = ["REF_FRAME", "TIME_SYSTEM", "export_oem", "export_oem_by_trajectory"]
 
@@ -175,13 +175,15 @@ def export_oem(
 def export_oem_by_trajectory(arcs: Arcs, folder: str | os.PathLike, **kwargs) -> list[Path]:
     """Write one OEM file per trajectory to ``folder``, named ``<kind>-<index>.oem``.
 
-    ``kwargs`` are passed on to :func:`export_oem`. Each file is written atomically, but the
-    set of files is not: a failure part-way leaves the files that were already written.
+    ``kwargs`` are passed on to :func:`export_oem`. The files are written together: a failure
+    part-way (a full disk, an interrupt) leaves none of them, nor a folder made for them.
     """
     folder = Path(folder)
     paths = []
-    for traj in np.unique(arcs.trajectory):
-        sub = arcs.subset(np.flatnonzero(arcs.trajectory == traj))
-        name = f"{arcs.trajectory_kind[int(traj)]}-{int(traj)}.oem"
-        paths.append(export_oem(sub, folder / name, **kwargs))
+    with written_together():
+        make_folder(folder)
+        for traj in np.unique(arcs.trajectory):
+            sub = arcs.subset(np.flatnonzero(arcs.trajectory == traj))
+            name = f"{arcs.trajectory_kind[int(traj)]}-{int(traj)}.oem"
+            paths.append(export_oem(sub, folder / name, **kwargs))
     return paths

@@ -249,19 +249,42 @@ def write_spk(
 
     with atomic_path(path, suffix=".bsp") as tmp:
         tmp.unlink()  # SPICE creates the file itself and refuses an existing one
-        handle = spiceypy.spkopn(str(tmp), "hamgrav tracking", 4096)
         try:
-            for target, first, last, data, epochs, segid in segments:
-                degree = min(DEGREE, 2 * len(epochs) - 1)
-                spiceypy.spkw13(
-                    handle, target, int(centre), FRAME, first, last, segid, degree,
-                    len(epochs), data, epochs,
-                )  # fmt: skip
-            spiceypy.dafac(handle, comments)
-        finally:
-            spiceypy.spkcls(handle)
+            handle = spiceypy.spkopn(str(tmp), "hamgrav tracking", 4096)
+            try:
+                for target, first, last, data, epochs, segid in segments:
+                    degree = min(DEGREE, 2 * len(epochs) - 1)
+                    spiceypy.spkw13(
+                        handle, target, int(centre), FRAME, first, last, segid, degree,
+                        len(epochs), data, epochs,
+                    )  # fmt: skip
+                spiceypy.dafac(handle, comments)
+            finally:
+                spiceypy.spkcls(handle)
+        except spiceypy.exceptions.SpiceyError:
+            size = sum(8 * (data.size + epochs.size) + 1024 for *_, data, epochs, _ in segments)
+            refused = _disk_refusal(tmp, size + 1024 * (len(comments) + 8))
+            if refused is not None:  # raised as a DiskError naming path by atomic_path
+                raise refused from None
+            raise
         _check_written(tmp, segments, int(centre))
     return path
+
+
+def _disk_refusal(tmp: Path, nbytes: int) -> OSError | None:
+    """The disk's error when ``nbytes`` more cannot be written to ``tmp``, else None.
+
+    SPICE reports a full disk (or a file-size limit) without the system's error: as a record
+    it cannot read back (SPICE(DAFCRNOTFOUND)). Trying to write what the file still needed
+    tells a full disk from a real SPICE error; ``tmp`` is removed afterwards either way."""
+    try:
+        with open(tmp, "ab") as fh:
+            fh.write(bytes(nbytes))
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        return exc
+    return None
 
 
 def _check_written(path: Path, segments, centre: int) -> None:
