@@ -441,6 +441,11 @@ def body(
         ("synchronous radius (length unit) [m]", f"{report['synchronous_radius_m']:.2f}"),
         ("Brillouin radius R_B [m]", f"{report['brillouin_radius_m']:.2f}"),
         ("volume [m^3]", f"{report['volume_m3']:.5g}"),
+        ("bulk density GM / (G V) [kg/m^3]", f"{report['bulk_density_kg_m3']:.4g}"),
+        (
+            "centre of mass at constant density [m, shape frame]",
+            ", ".join(f"{v:.3f}" for v in report["constant_density_centre_m"]),
+        ),
         ("envelope (0-0.15 R_B) inside R_B", f"{report['envelope_fraction_inside_brillouin']:.3f}"),
         *(
             (f"median |a_pert|/|a_central| at {k} R_B", f"{v:.4f}")
@@ -724,7 +729,7 @@ def import_spk_command(
     save_arcs(arcs, output)
     cfg = arcs.config
     console.print(
-        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples of {len(target)} "
+        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples of {arcs.n_trajectories} "
         f"targets to {output} (frames: {', '.join(cfg['frames'])}; canonical time 0 = "
         f"{cfg['epoch_tdb']} TDB; noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} "
         f"m, sigma_v {arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
@@ -763,12 +768,18 @@ MAX_HIDDEN = 1024
 def _check_fit_memory(settings: dict, hidden_sizes, arcs, limit) -> None:
     """Refuse a fit whose design blocks and normal matrices cannot fit in ``limit`` (one
     member's parameters: the members of network-best are fitted one at a time)."""
+    import numpy as np
+
+    from .fit.estimator import AUTO_DEGREES
     from .sizing import check_memory, fit_bytes, network_parameters
 
     if settings["term"] == "network":
         n_params, fix = network_parameters(hidden_sizes), "use fewer or smaller --hidden layers"
     elif settings["term"] == "sh":
-        n_params, fix = (settings["degree"] + 1) ** 2 - 4, "lower the degree of --model sh:L"
+        # sh:auto: its most flexible candidate is the largest fit it makes
+        degree = settings["degree"]
+        largest = max(AUTO_DEGREES if degree == "auto" else np.atleast_1d(degree))
+        n_params, fix = (int(largest) + 1) ** 2 - 4, "lower the degree of --model sh:L"
     else:
         return
     check_memory(

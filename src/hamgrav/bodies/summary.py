@@ -6,7 +6,7 @@ import numpy as np
 
 from ..core.fields import perturbation_ratio, relative_field_error, shell_points
 from ..core.mascons import mascon_potential
-from .catalogue import Body
+from .catalogue import G_SI, Body
 from .interiors import DEFAULT_TRUTH_MASCONS, build_truth
 from .polyhedron import polyhedron_potential
 
@@ -43,6 +43,11 @@ def body_report(
         "brillouin_radius_m": framed.brillouin_radius_m,
         "brillouin_radius_canonical": r_b,
         "volume_m3": float(body.mesh_m.volume),
+        "bulk_density_kg_m3": body.gm_m3_s2 / (G_SI * float(body.mesh_m.volume)),
+        # where the centre of mass lies at constant density, in the shape file's frame [m]:
+        # the --origin of tracking relative to the centre of mass of a shape whose own
+        # origin is elsewhere
+        "constant_density_centre_m": [float(v) for v in body.mesh_m.center_mass],
         "mesh_vertices": int(len(body.mesh_m.vertices)),
         "mesh_faces": int(len(body.mesh_m.faces)),
         "envelope_fraction_inside_brillouin": framed.envelope_fraction_inside_brillouin(),

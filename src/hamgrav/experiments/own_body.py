@@ -37,7 +37,7 @@ from ..bodies.shapes import read_shape, write_icq
 from ..core.mascons import mascon_potential
 from ..core.shexpansion import sh_potential
 from ..errors import InputError
-from ..fit.estimator import GravityEstimator, preset
+from ..fit.estimator import GravityEstimator, body_for_model, preset
 from ..io.shformats import sh_export, write_icgem
 from ..io.spk import import_spk, write_spk
 from ..sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
@@ -66,7 +66,13 @@ class OwnBodyConfig(ExperimentConfig):
         (95.0, -67.0), "Pole right ascension and declination in the ICRF [deg]."
     )
     icq_q: int = option(24, "ICQ resolution Q (6 Q^2 + 2 vertices).", at_least=2, at_most=128)
-    interior: str = option("head-tail", "Truth interior (simulator only).")
+    interior: str = option(
+        "uniform",
+        "Truth interior (simulator only). Uniform: its centre of mass is the shape's "
+        "constant-density centroid, which the user can compute and gives as the frame origin "
+        "(other interiors put it elsewhere, and tracking relative to it then needs the centre "
+        "of mass from orbit determination).",
+    )
     n_mascons: int = option(400, "Truth mascons (simulator only).", at_least=10, at_most=5000)
     orbits: int = option(16, "Orbits on a radius x inclination grid.", at_least=1, at_most=200)
     radius_rb: tuple[float, ...] = option((1.2, 2.0), "Orbit radius range [R_B].", above=1)
@@ -164,20 +170,28 @@ class OwnBodyExperiment(Experiment):
                 sigma_r_m=config.sigma_r_m,
             )
             simulated = simulate_orbits(truth, families, tracking, seed=seed)
+            units = truth.body.units
             kernel = write_spk(simulated, folder / "track.bsp", truth.body)
             # the user's import: the body from its TOML, the noise as the mission states it,
-            # and the frame origin: the body's centre of mass in the shape's frame, which the
-            # SPK's states are relative to
+            # and the frame origin where the user puts the centre of mass the SPK's states are
+            # relative to: the shape's constant-density centroid (hamgrav body prints it)
+            centroid = tuple(float(v) for v in body.mesh_m.center_mass)
             arcs = import_spk(
                 [kernel],
                 body,
                 "all",
                 sigma_r_m=simulated.sigma_r_m,
                 sigma_v_m_s=simulated.sigma_v_m_s,
-                origin_m=truth.body.origin_m,
+                origin_m=centroid,
             )
-            say(f"{arcs.n_arcs} arcs imported from the SPK (no truth)")
-            units = truth.body.units
+            # the states stay relative to the truth's centre of mass: the user's frame is that
+            # frame with the shape placed at the centroid, a fraction of a metre off
+            offset_m = np.asarray(centroid) - np.asarray(truth.body.origin_m)
+            say(
+                f"{arcs.n_arcs} arcs imported from the SPK (no truth); the centroid is "
+                f"{np.linalg.norm(offset_m):.3f} m from the truth's centre of mass"
+            )
+            # scored where the data are: at the same coordinates as the truth's
             sets = evaluation_sets(truth.body, (1.05, 1.2, 1.5), (30.0,), seed=seed)
             length, potential = units.length_m, units.potential_m2_s2
             truth_v = {  # the truth's perturbing potential [m^2/s^2]
@@ -199,6 +213,7 @@ class OwnBodyExperiment(Experiment):
                     },
                     "relative_cost": est.diagnostics_.get("relative_cost"),
                     "improved": bool(est.diagnostics_.get("improved")),
+                    "overfit": bool(est.diagnostics_.get("overfit")),
                 }
                 gm = fitted.gm_m3_s2
                 field_error[row] = {}
@@ -211,7 +226,10 @@ class OwnBodyExperiment(Experiment):
                 export = sh_export(
                     fitted,
                     degree=degree,
-                    reference_radius=None if hasattr(term, "degree") else body_rb(truth),
+                    # as export does: a network is projected at its recorded body's R_B
+                    reference_radius=None
+                    if hasattr(term, "degree")
+                    else body_for_model(fitted).brillouin_radius,
                 )
                 path = write_icgem(export, folder / f"{row}.gfc", source=f"own-body {row}")
                 exports[row] = path.read_text().count("\ngfc ")
@@ -229,6 +247,7 @@ class OwnBodyExperiment(Experiment):
                     + ", ".join(f"{k} {v:.3f}" for k, v in field_error[row].items())
                 )
         result = {
+            "centroid_offset_m": round(float(np.linalg.norm(offset_m)), 4),
             "body": {
                 "name": body.name,
                 "gm_m3_s2": body.gm_m3_s2,
@@ -248,11 +267,6 @@ class OwnBodyExperiment(Experiment):
 
     def figures(self, report: dict, artefacts: dict) -> dict:
         return {}
-
-
-def body_rb(truth) -> float:
-    """The Brillouin radius of the truth's body (canonical): a network's export radius."""
-    return truth.body.brillouin_radius
 
 
 def own_body_readme(report: dict) -> list[str]:
@@ -299,6 +313,8 @@ def own_body_readme(report: dict) -> list[str]:
         lines.append(
             f"- {row}: {f['outcome']}, {f['n_params']} parameters, held-out cost "
             f"{f['relative_cost']:.3g} of no correction"
+            + (", flagged overfit" if f.get("overfit") else "")
+            + ("" if f["improved"] else ", flagged as no improvement")
             + (f", chosen by cross-validation: {chosen}" if chosen else "")
             + f" ({f['wall_s']:.0f} s)"
         )

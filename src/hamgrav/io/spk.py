@@ -72,6 +72,7 @@ from .tracks import (
 __all__ = [
     "ALL_TARGETS",
     "DEFAULT_CENTRE",
+    "DEFAULT_EPOCH",
     "SpkStates",
     "TARGET_BASE",
     "default_rotation",
@@ -81,6 +82,8 @@ __all__ = [
     "write_spk",
 ]
 
+#: Canonical time 0 of simulated arcs written to an SPK (TDB): they carry no epoch of their own.
+DEFAULT_EPOCH = "2030-01-01T00:00:00"
 #: Target of trajectory k: ``TARGET_BASE - k``.
 TARGET_BASE = -1000
 #: Centre of a body without a NAIF ID (e.g. the synthetic ones): no body has this ID.
@@ -136,7 +139,7 @@ def write_spk(
     path: str | os.PathLike,
     body: Body,
     *,
-    epoch: str = "2030-01-01T00:00:00",
+    epoch: str | None = None,
     noisy: bool = True,
     centre: int | None = None,
     rotation: RotationModel | None = None,
@@ -149,7 +152,8 @@ def write_spk(
             beside it, checked, then moved into place: a failure leaves nothing at ``path``.
         body: the body the arcs were simulated for (its GM and spin period must be the
             arcs'); its NAIF ID is the centre and its rotation model turns the states.
-        epoch: TDB epoch (ISO) of canonical time 0.
+        epoch: TDB epoch (ISO) of canonical time 0 (default: the arcs' own, which imported
+            tracking records, else :data:`DEFAULT_EPOCH`).
         noisy: write the noisy ``arcs.states`` (True) or the ``arcs.true_states``.
         centre: NAIF ID of the centre when the body has none (default :data:`DEFAULT_CENTRE`).
         rotation: the rotation model (default ``body.rotation``, else
@@ -177,6 +181,7 @@ def write_spk(
     centre = known if known is not None else centre if centre is not None else DEFAULT_CENTRE
     if TARGET_BASE - arcs.n_trajectories < int(centre) <= TARGET_BASE:
         raise InputError(f"centre {centre} is also a target ID; give another NAIF ID")
+    epoch = epoch or arcs.config.get("epoch_tdb") or DEFAULT_EPOCH
     t0 = tdb(epoch, "epoch", "--epoch")
     rotation = rotation or body.rotation or default_rotation(body.spin_period_s, epoch)
     rotation_t0 = tdb(rotation.epoch, "the rotation model's epoch", "--rotation-epoch")
