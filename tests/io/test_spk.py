@@ -175,6 +175,19 @@ def test_kernel_with_a_pck_gives_its_frame(synthetic, tmp_path):
     np.testing.assert_allclose(
         arcs.states[0], _expected(synthetic, rotation, ets, states), rtol=0, atol=1e-9
     )
+    # independently of hamgrav's rotation code: SPICE's own state transformation into the
+    # frame gives the body-fixed position and the rotating-frame velocity
+    spiceypy.furnsh(str(pck))
+    try:
+        fixed = np.array(
+            [spiceypy.sxform("J2000", "SYNTH_FIXED", t) @ x for t, x in zip(ets, states)]
+        )
+    finally:
+        spiceypy.kclear()
+    units = synthetic.units
+    position, velocity = units.state_from_canonical(arcs.states[0])
+    np.testing.assert_allclose(position, fixed[: len(position), :3] * 1e3, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(velocity, fixed[: len(position), 3:] * 1e3, rtol=0, atol=1e-9)
     # a frame spinning at another rate is not the body's frame
     fast = _pck(tmp_path / "fast.tf", CENTRE, 40.0, 25.0, 123.0, synthetic.spin_period_s / 2)
     with pytest.raises(InputError, match="frame SYNTH_FIXED of the kernels spins at"):
