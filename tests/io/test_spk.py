@@ -179,9 +179,8 @@ def test_kernel_with_a_pck_gives_its_frame(synthetic, tmp_path):
     # frame gives the body-fixed position and the rotating-frame velocity
     spiceypy.furnsh(str(pck))
     try:
-        fixed = np.array(
-            [spiceypy.sxform("J2000", "SYNTH_FIXED", t) @ x for t, x in zip(ets, states)]
-        )
+        turn = [spiceypy.sxform("J2000", "SYNTH_FIXED", t) for t in ets]
+        fixed = np.array([m @ x for m, x in zip(turn, states, strict=True)])
     finally:
         spiceypy.kclear()
     units = synthetic.units
