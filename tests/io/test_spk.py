@@ -180,7 +180,10 @@ def test_kernel_with_a_pck_gives_its_frame(synthetic, tmp_path):
     spiceypy.furnsh(str(pck))
     try:
         fixed = np.array(
-            [spiceypy.sxform("J2000", "SYNTH_FIXED", t) @ x for t, x in zip(ets, states)]
+            [
+                spiceypy.sxform("J2000", "SYNTH_FIXED", t) @ x
+                for t, x in zip(ets, states, strict=True)
+            ]
         )
     finally:
         spiceypy.kclear()
