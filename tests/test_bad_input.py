@@ -350,7 +350,7 @@ def test_a_checkpoint_that_is_a_link_is_refused_first(files, tmp_path):
 
 
 def test_same_file_means_the_same_directory_entry(tmp_path):
-    from hamgrav.io.files import same_file
+    from hamgrav.files import same_file
 
     real = tmp_path / "a.h5"
     real.write_bytes(b"x")

@@ -5,8 +5,8 @@ import pytest
 from typer.testing import CliRunner
 
 from hamgrav.cli import app
+from hamgrav.files import read_toml
 from hamgrav.io.arcs import load_arcs
-from hamgrav.io.files import read_toml
 from hamgrav.sim.campaign import Campaign
 
 runner = CliRunner()

@@ -178,7 +178,7 @@ def test_a_signal_as_the_model_is_written_says_the_fit_is_complete(
 ):
     """A signal that arrives while the model file is moved into place (held until it is)
     leaves the model, not its stale checkpoint, and says so."""
-    from hamgrav.io import files
+    from hamgrav import files
 
     real_replace = os.replace
 

@@ -92,7 +92,7 @@ with _DeferInterrupt():
     from .bodies.catalogue import load_body
     from .bodies.interiors import DEFAULT_TRUTH_MASCONS
     from .errors import DiskError, HamgravError, HamgravWarning, InputError
-    from .io.files import (
+    from .files import (
         check_output,
         check_writable_folder,
         disk_error,
@@ -1651,8 +1651,8 @@ def select(
 ) -> None:
     """D-optimal choice of the next orbits from a candidate pool, from predicted sensitivities
     at the current model (no measurements, no truth)."""
+    from .files import atomic_path
     from .fit.design import select_orbits
-    from .io.files import atomic_path
     from .io.models import load_model
     from .sim.campaign import load_campaign
     from .sizing import check_memory, memory_limit, pool_bytes

@@ -4,8 +4,8 @@ import pytest
 
 from hamgrav.core.arcs import NO_TRUTH
 from hamgrav.errors import DatasetError, HamgravWarning
+from hamgrav.files import atomic_path
 from hamgrav.io.arcs import ARCS_FORMAT_VERSION, load_arcs, save_arcs
-from hamgrav.io.files import atomic_path
 
 
 def test_round_trip_exact(small_arcs, tmp_path):

@@ -31,7 +31,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import BodyDataError, HamgravError, InputError
-from ..io.files import read_toml
+from ..files import read_toml
 from .catalogue import G_SI, Body
 from .rotation import J2000_TDB, RotationModel
 from .shapes import FORMATS, UNITS_M, read_shape, shape_format

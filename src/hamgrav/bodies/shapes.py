@@ -47,7 +47,7 @@ import numpy as np
 import trimesh
 
 from ..errors import BodyDataError, InputError
-from ..io.files import atomic_path
+from ..files import atomic_path
 
 __all__ = [
     "FORMATS",

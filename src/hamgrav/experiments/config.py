@@ -11,7 +11,7 @@ import typing
 from pathlib import Path
 
 from ..errors import InputError
-from ..io.files import read_toml
+from ..files import read_toml
 
 __all__ = ["ExperimentConfig", "option", "label", "COMMAND_LINE"]
 

@@ -29,7 +29,7 @@ import numpy as np
 from .. import __version__
 from ..bodies.catalogue import bodies_dir, check_body_name
 from ..errors import InputError
-from ..io.files import make_folder, written_together
+from ..files import make_folder, written_together
 from ..report.writer import save_figure, write_json, write_text
 from .config import ExperimentConfig
 from .schema import REPORT, render_checked, validate

@@ -27,8 +27,8 @@ import numpy as np
 from ..core.arcs import NO_TRUTH, Arcs
 from ..core.mascons import MasconSet
 from ..errors import DatasetError
+from ..files import atomic_path
 from .body_record import read_body_record, write_body_record
-from .files import atomic_path
 from .hdf5 import (
     READ_ERRORS,
     attribute,

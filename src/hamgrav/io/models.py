@@ -42,10 +42,10 @@ import numpy as np
 from .. import __version__
 from ..core.model import Model
 from ..errors import DatasetError, HamgravWarning
+from ..files import atomic_path
 from ..fit.fitted import FittedModel
 from . import hdf5
 from .body_record import read_body_record, write_body_record
-from .files import atomic_path
 
 __all__ = [
     "ModelFileError",

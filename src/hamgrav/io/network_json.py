@@ -32,9 +32,9 @@ import numpy as np
 from .. import __version__
 from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
 from ..errors import InputError
+from ..files import atomic_path
 from ..fit.fitted import FittedModel
 from ..units import CanonicalUnits
-from .files import atomic_path
 
 __all__ = ["NETWORK_FORMAT", "network_document", "write_network_json"]
 

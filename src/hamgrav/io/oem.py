@@ -39,8 +39,8 @@ from oem.components import EphemerisSegment, HeaderSection, MetaDataSection
 
 from ..core.arcs import Arcs
 from ..errors import InputError
+from ..files import atomic_path, make_folder, written_together
 from ..units import CanonicalUnits
-from .files import atomic_path, make_folder, written_together
 
 __all__ = ["REF_FRAME", "TIME_SYSTEM", "export_oem", "export_oem_by_trajectory"]
 

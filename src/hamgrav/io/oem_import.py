@@ -49,7 +49,7 @@ from ..bodies.catalogue import Body
 from ..bodies.rotation import RotationModel
 from ..core.arcs import Arcs
 from ..errors import DatasetError, HamgravWarning, InputError
-from .files import same_file
+from ..files import same_file
 from .naif import centre_is_body
 from .oem import REF_FRAME as HAMGRAV_FRAME
 from .tracks import (

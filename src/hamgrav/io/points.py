@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .files import atomic_path
+from ..files import atomic_path
 
 __all__ = ["POINTS_HEADER", "read_points_csv", "write_columns_csv"]
 

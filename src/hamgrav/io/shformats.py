@@ -50,9 +50,9 @@ from ..core.shexpansion import (
 )
 from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
 from ..errors import InputError
+from ..files import atomic_path
 from ..fit.fitted import FittedModel
 from ..units import CanonicalUnits
-from .files import atomic_path
 
 __all__ = ["SHExport", "sh_export", "write_icgem", "write_shadr", "CHECK_RADII"]
 

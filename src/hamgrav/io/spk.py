@@ -56,8 +56,8 @@ from ..bodies.catalogue import Body
 from ..bodies.rotation import J2000_TDB, RotationModel
 from ..core.arcs import Arcs
 from ..errors import DatasetError, HamgravWarning, InputError
+from ..files import atomic_path, same_file
 from ..units import CanonicalUnits
-from .files import atomic_path, same_file
 from .naif import body_naif_id, naif_code, naif_name
 from .tracks import (
     Track,

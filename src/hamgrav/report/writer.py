@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..io.files import atomic_path
+from ..files import atomic_path
 
 __all__ = ["write_json", "write_text", "save_figure"]
 

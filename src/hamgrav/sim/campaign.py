@@ -40,7 +40,7 @@ from ..bodies.interiors import (
 )
 from ..core.arcs import MAX_SEED, Arcs
 from ..errors import InputError
-from ..io.files import read_toml
+from ..files import read_toml
 from .tracking import (
     OrbitFamily,
     TrackingConfig,

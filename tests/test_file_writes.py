@@ -8,9 +8,9 @@ import tempfile
 
 import pytest
 
+from hamgrav import files
 from hamgrav.errors import DiskError
-from hamgrav.io import files
-from hamgrav.io.files import atomic_path, make_folder, signals_held, written_together
+from hamgrav.files import atomic_path, make_folder, signals_held, written_together
 
 
 @pytest.fixture

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..errors import DatasetError, DiskError, InputError
+from .errors import DatasetError, DiskError, InputError
 
 __all__ = [
     "atomic_path",
