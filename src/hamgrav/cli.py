@@ -999,7 +999,15 @@ def fit(
     try:
         with _progress() as progress:
             total = steps if estimator.solver_name == "adam" else None
-            task = progress.add_task("fitting", total=total)
+            choices = estimator.choices()
+            # the cross-validation fits come first and report no iterations: say what runs
+            first = (
+                f"choosing {', '.join(choices)} by {estimator.folds}-fold cross-validation "
+                f"({sum(map(len, choices.values())) * estimator.folds} fits), then fitting"
+                if choices
+                else "fitting"
+            )
+            task = progress.add_task(first, total=total)
 
             def on_iteration(it, record):
                 _stop_if_signalled()
