@@ -31,7 +31,8 @@ from hypothesis import strategies as st
 from hamgrav.bodies.catalogue import load_body
 from hamgrav.bodies.interiors import _read_mascon_csv
 from hamgrav.cli import app
-from hamgrav.core.arcs import Arcs
+from hamgrav.core.arcs import MAX_SEED, Arcs
+from hamgrav.core.fields import MAX_SHELL_RB
 from hamgrav.core.mascons import MasconSet
 from hamgrav.core.model import Model
 from hamgrav.core.terms import PointMass, SphericalHarmonics
@@ -615,7 +616,9 @@ NUMBER_TEXT = st.one_of(
 )
 
 
-def _valid_number(text: str, low: float, *, integer: bool, open_low=False, lists=False):
+def _valid_number(
+    text: str, low: float, *, integer: bool, open_low=False, lists=False, high=math.inf
+):
     """True: the value must be accepted; False: refused; None: either is right (typer
     parses integer options leniently: "3.0" is the integer 3, exactly)."""
     words = [w.strip() for w in text.split(",") if w.strip()] if lists else [text]
@@ -635,14 +638,14 @@ def _valid_number(text: str, low: float, *, integer: bool, open_low=False, lists
             if not (math.isfinite(exact) and exact.is_integer() and exact >= low):
                 return False
             verdict, v = None, exact
-        if not math.isfinite(v) or (v <= low if open_low else v < low):
+        if not math.isfinite(v) or (v <= low if open_low else v < low) or v > high:
             return False
     return verdict
 
 
 FIT_OPTIONS = {
     "--steps": lambda t: _valid_number(t, 1, integer=True),
-    "--seed": lambda t: _valid_number(t, 0, integer=True),
+    "--seed": lambda t: _valid_number(t, 0, integer=True, high=MAX_SEED),
     "--learning-rate": lambda t: _valid_number(t, 0.0, integer=False, open_low=True),
     "--hidden": lambda t: (
         _valid_number(t, 1, integer=True, lists=True)
@@ -681,7 +684,7 @@ def test_fuzz_fit_options(tmp_path, option, value):
 
 
 EVALUATE_OPTIONS = {
-    "--shells": lambda t: _valid_number(t, 1.0, integer=False, lists=True),
+    "--shells": lambda t: _valid_number(t, 1.0, integer=False, lists=True, high=MAX_SHELL_RB),
     "--altitude": lambda t: _valid_number(t, 0.0, integer=False, lists=True),
 }
 
@@ -705,7 +708,8 @@ def test_fuzz_select_options(tmp_path, option, value):
     result = runner.invoke(
         COMMAND, ["select", str(missing), "--pool", "p.toml", f"{option}={value}"]
     )
-    valid = _valid_number(value, 1 if option == "--picks" else 0, integer=True)
+    high = MAX_SEED if option == "--seed" else math.inf
+    valid = _valid_number(value, 1 if option == "--picks" else 0, integer=True, high=high)
     _cli_verdict(result, valid, [f"model file not found: {missing}"], option)
 
 
