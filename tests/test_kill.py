@@ -122,7 +122,11 @@ def test_fits_killed_at_random_times_end_as_if_never_killed(solver, server, arcs
             assert status == 128 + signum, context
         elif status != 0:  # typer's (a silent 130) or the default action, outside the command
             outcomes["signalled outside the command"] += 1
-            assert status in (128 + signum, -signum) and not said, context
+            # before the command ran it said nothing; after it had returned (a loaded machine
+            # can deliver the signal that late) its own report is the last line, and the
+            # model is complete
+            assert status in (128 + signum, -signum), context
+            assert not said or (out.exists() and not ckpt.exists()), context
         if again is not None:
             status, _ = server.run(again, log)
             assert status == 0, f"run {k} again: {log.read_text()[-600:]}"
