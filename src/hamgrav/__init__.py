@@ -46,6 +46,8 @@ _EXPORTS = {
     "simulate_campaign": "sim.campaign",
     # terms and models
     "MasconSet": "core.mascons",
+    "GravityTerm": "core.terms",
+    "register_term": "core.terms",
     "PointMass": "core.terms",
     "MasconTerm": "core.terms",
     "NeuralPotential": "core.terms",

@@ -1574,10 +1574,11 @@ def export_command(
         write_network_json(fitted, output)
         console.print(f"wrote {output}: the network and the known part, canonical units")
         return
-    from .core.terms import SphericalHarmonics
     from .io.shformats import sh_export, write_icgem, write_shadr
 
-    is_sh = isinstance(fitted.model.learnable, SphericalHarmonics)
+    # an SH model is exported at its own degree and radius, with its formal errors
+    term = fitted.model.learnable
+    is_sh = term is not None and term.expansion() is not None
     reference = None if is_sh else _body_for(body, fitted=fitted).brillouin_radius
     covariance, note = None, "no formal errors (--no-errors)"
     if errors and is_sh:

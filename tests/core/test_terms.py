@@ -181,3 +181,86 @@ def test_srp_pressure_units():
     units = CanonicalUnits(4.892, 15465.8)
     k = SolarRadiationPressure.pressure_for(units, distance_au=1.0)
     assert k * units.acceleration_m_s2 == pytest.approx(1361.0 / 299792458.0)
+
+
+def test_terms_answer_for_themselves():
+    """What fits and exports ask of a term, asked of the term (no tests of its class)."""
+    sh, nn = SphericalHarmonics(3, 0.8), NeuralPotential((4,), members=2)
+    assert (sh.default_solver, sh.selects_on_validation, sh.natural_regulariser) == (
+        "lm",
+        False,
+        "kaula",
+    )
+    assert (nn.default_solver, nn.selects_on_validation, nn.natural_regulariser) == (
+        "adam",
+        True,
+        "harmonic",
+    )
+    assert PointMass().natural_regulariser is None and PointMass().kaula_weights() is None
+    assert np.array_equal(sh.kaula_weights(), [float(l) ** 4 for _, l, _ in sh_index(3)])
+    assert nn.kaula_weights() is None and sh.expansion() == (3, 0.8) and nn.expansion() is None
+    assert (sh.members, sh.member(), nn.member().members) == (1, sh, 1)
+    theta = np.arange(float(nn.n_params))
+    assert [len(b) for b in nn.split_members(theta)] == [nn.member_params] * 2
+    assert np.array_equal(sh.split_members(np.ones(sh.n_params))[0], np.ones(sh.n_params))
+    assert (sh.title, nn.title, PointMass().title) == ("SH degree 3", "network", "point-mass")
+    assert Model((PointMass(),), nn).member().learnable == nn.member()
+    assert Model((PointMass(),), sh).member().learnable is sh
+    # exports: exact tables where the term has them, None for the network (projected)
+    central = PointMass(0.5).sh_tables(None, 4, 1.0)
+    assert central.exact and central.c[0, 0] == 0.5 and not central.c[1:].any()
+    assert nn.sh_tables(theta, 4, 1.0) is None and sh.export_json(np.zeros(12)) is None
+    coeffs = np.linspace(1.0, 2.0, sh.n_params)
+    assert sh.sh_tables(coeffs, 2, 0.8).c[2, 0] == 1.0 and not sh.sh_tables(coeffs, 2, 0.8).exact
+    assert len(nn.export_json(theta)["members"]) == 2
+
+
+def test_registry_rebuilds_every_term_and_a_new_one(cluster, monkeypatch):
+    from dataclasses import dataclass
+
+    from hamgrav.core import terms
+    from hamgrav.core.hamiltonian import POSITION
+    from hamgrav.core.terms import (
+        GravityTerm,
+        MasconTerm,
+        register_term,
+        registered_terms,
+        term_from_description,
+    )
+
+    assert set(registered_terms()) >= {"point-mass", "mascons", "network", "sh", "srp"}
+    for term in (
+        PointMass(0.7),
+        NeuralPotential((3, 2), 0.2, 1.1, 2),
+        SphericalHarmonics(4, 0.9, 0.5),
+        SolarRadiationPressure(1e-3, 12.0),
+    ):
+        assert term_from_description(term.describe()) == term
+    mascons = term_from_description(MasconTerm(cluster, "prior").describe())
+    assert mascons.key() == MasconTerm(cluster).key() and mascons.title == "prior"
+    monkeypatch.setattr(terms, "_REGISTRY", dict(terms._REGISTRY))  # the new term stays here
+
+    @register_term("test-dipole")
+    @dataclass(frozen=True)
+    class Dipole(GravityTerm):
+        """A fixed dipole along z: a term written in one place, rebuilt by its name."""
+
+        strength: float = 1e-3
+
+        def potential(self, offset: int = 0):
+            x, y, z = POSITION
+            return self.strength * z / hy.sqrt(x * x + y * y + z * z) ** 3
+
+        def key(self) -> str:
+            return f"dipole({self.strength!r})"
+
+        def describe(self) -> dict:
+            return {"kind": self.kind, "strength": self.strength}
+
+    model = Model((PointMass(), Dipole(2e-3)))
+    again = Model.from_description(model.describe())
+    assert again.known[1] == Dipole(2e-3) and again.key() == model.key()
+    with pytest.raises(ValueError, match="registered already"):
+        register_term("sh", Dipole)
+    with pytest.raises(ValueError, match="unknown term kind 'nope'"):
+        term_from_description({"kind": "nope"})

@@ -270,7 +270,7 @@ def test_calibration_counts():
     assert out["median_abs_z"] == 1.0
 
 
-def test_only_sh_and_network_models_have_a_formal_covariance(small_arcs):
+def test_only_models_with_a_learnable_term_have_a_formal_covariance(small_arcs):
     fitted = FittedModel(
         Model((PointMass(),), None),
         np.zeros(0),
@@ -278,7 +278,7 @@ def test_only_sh_and_network_models_have_a_formal_covariance(small_arcs):
         small_arcs.gm_m3_s2,
         small_arcs.spin_period_s,
     )
-    with pytest.raises(InputError, match="computed for SH and network models only"):
+    with pytest.raises(InputError, match="computed for models with a learnable term"):
         parameter_covariance(fitted, small_arcs)
 
 

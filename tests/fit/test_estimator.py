@@ -556,3 +556,45 @@ def test_resuming_an_ensemble_at_its_first_member_fits_the_next_from_scratch_set
     half = full.params_.size // 2
     np.testing.assert_array_equal(again.params_[half:], full.params_[half:])
     assert again.result_.members[1].history["lambda"][0] == settings["solver"].lambda0
+
+
+@pytest.mark.filterwarnings("ignore::hamgrav.errors.HamgravWarning")
+def test_a_term_object_fits_as_its_spelling_does(small_arcs, synthetic_truth):
+    """GravityEstimator takes the term as an object: the same fit, to the last bit, as the
+    spelling "sh" / "network" builds (the defaults of solver and hold-out come from the
+    term)."""
+    from hamgrav.core.terms import NeuralPotential
+
+    body = synthetic_truth.body
+    lm = LevenbergMarquardt(max_iter=3)
+    r_b = body.brillouin_radius
+    pairs = [
+        (GravityEstimator("sh", degree=3), GravityEstimator(SphericalHarmonics(3, r_b))),
+        (
+            GravityEstimator("network", hidden=(4,), members=2, solver=lm),
+            GravityEstimator(NeuralPotential((4,), members=2), solver=lm),
+        ),
+    ]
+    for by_name, by_object in pairs:
+        assert by_object.solver_name == by_name.solver_name
+        assert by_object.solver_sees_validation == by_name.solver_sees_validation
+        assert by_object.holdout_for(small_arcs.n_arcs) == by_name.holdout_for(small_arcs.n_arcs)
+        a, b = by_name.fit(small_arcs), by_object.fit(small_arcs)
+        assert b.model_.key() == a.model_.key() and np.array_equal(b.params_, a.params_)
+        assert np.array_equal(b.validation_, a.validation_)
+    # the public spelling of the issue: a term object and nothing else
+    sh = GravityEstimator(SphericalHarmonics(2, r_b)).fit(small_arcs)
+    assert sh.model_.learnable == SphericalHarmonics(2, r_b)
+    assert sh.result_.solver["name"] == "levenberg-marquardt" and sh.diagnostics_["improved"]
+    assert GravityEstimator(None).holdout_for(small_arcs.n_arcs) == 0.0
+
+
+def test_a_term_object_is_checked(small_arcs):
+    with pytest.raises(InputError, match="must have parameters shared by all arcs"):
+        GravityEstimator(PointMass()).fit(small_arcs)
+    with pytest.raises(InputError, match="has its own structure"):
+        GravityEstimator(SphericalHarmonics(3, 1.0), degree="auto").choices()
+    with pytest.raises(InputError, match="kaula applies to spherical harmonics"):
+        GravityEstimator("network", kaula="cv").choices()
+    with pytest.raises(InputError, match="term must be one of network, sh, none or a GravityTerm"):
+        GravityEstimator("mascons").fit(small_arcs)

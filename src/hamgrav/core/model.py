@@ -20,13 +20,13 @@ from __future__ import annotations
 import copy
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import heyoka as hy
 import numpy as np
 
 from .hamiltonian import POSITION, STATE_VARIABLES, equations_of_motion, rotating_hamiltonian
-from .terms import Term, term_from_description
+from .terms import GravityTerm, term_from_description
 
 __all__ = [
     "Model",
@@ -60,9 +60,9 @@ class Model:
     """``known`` terms (no runtime parameters), an optional ``learnable`` term and
     ``per_trajectory`` terms (parameters with one value per trajectory, e.g. SRP)."""
 
-    known: tuple[Term, ...]
-    learnable: Term | None = None
-    per_trajectory: tuple[Term, ...] = ()
+    known: tuple[GravityTerm, ...]
+    learnable: GravityTerm | None = None
+    per_trajectory: tuple[GravityTerm, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "known", tuple(self.known))
@@ -92,6 +92,13 @@ class Model:
     def n_system_params(self) -> int:
         """Length of the compiled system's runtime-parameter vector."""
         return self.n_learn + self.n_trajectory_params
+
+    def member(self) -> Model:
+        """The model of one member of the learnable term's ensemble (fitted each on its own):
+        the model itself unless the term is an ensemble."""
+        if self.learnable is None or self.learnable.members == 1:
+            return self
+        return replace(self, learnable=self.learnable.member())
 
     def key(self) -> str:
         """Structure key: equal keys compile to the same code."""

@@ -1,9 +1,13 @@
 """Potential terms as heyoka expressions of the body-fixed position (canonical units).
 
-Every term is a small frozen object with one job: ``potential(offset)`` returns a heyoka
-expression V(q[, t]) (positive convention: the Hamiltonian carries ``-V``), reading its
-runtime numbers from ``heyoka.par[offset : offset + n_params + trajectory_params]``. A term is
-one of three kinds:
+Every term is a small frozen object implementing :class:`GravityTerm`: ``potential(offset)``
+returns a heyoka expression V(q[, t]) (positive convention: the Hamiltonian carries ``-V``),
+reading its runtime numbers from ``heyoka.par[offset : offset + n_params + trajectory_params]``,
+and the term answers what fits, exports and model files ask of it (its default solver, its
+natural regulariser, its SH tables...). Each term class is registered by name
+(:func:`register_term`); model files record a term by that name and its constructor
+arguments (:meth:`GravityTerm.describe`, :func:`term_from_description`). A term is one of
+three kinds:
 
 - known: no runtime parameters (its numbers are compiled in as constants): point mass, mascons;
 - learnable: ``n_params`` parameters shared by every trajectory: network, spherical harmonics;
@@ -24,7 +28,8 @@ from __future__ import annotations
 import hashlib
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, is_dataclass
+from typing import ClassVar, NamedTuple
 
 import heyoka as hy
 import numpy as np
@@ -33,7 +38,11 @@ from .hamiltonian import POSITION
 from .mascons import MasconSet
 
 __all__ = [
+    "GravityTerm",
     "Term",
+    "SHTables",
+    "register_term",
+    "registered_terms",
     "PointMass",
     "MasconTerm",
     "NeuralPotential",
@@ -46,13 +55,36 @@ __all__ = [
 x, y, z = POSITION
 
 
-class Term(ABC):
-    """Base of all potential terms (canonical units, positive potential)."""
+class GravityTerm(ABC):
+    """The interface of every potential term (canonical units, positive potential).
 
+    A term knows itself: its expression and parameter layout (:meth:`potential`,
+    ``n_params``, ``trajectory_params``), its starting point (:meth:`initial_params`), how a
+    fit treats it (``default_solver``, ``selects_on_validation``, ``natural_regulariser``,
+    :meth:`kaula_weights`, ensembles through ``members``, :meth:`member` and
+    :meth:`split_members`), what it exports (:meth:`expansion`, :meth:`sh_tables`,
+    :meth:`export_json`) and how a model file records it (:meth:`describe` under its
+    registered ``kind``, :meth:`from_description`). Callers ask the term instead of testing its
+    class, so a new term is one subclass registered by :func:`register_term`, plus its tests.
+    """
+
+    #: the name the term is registered and recorded by (the "kind" of :meth:`describe`)
+    kind: ClassVar[str] = ""
     #: learnable parameters shared by all trajectories
     n_params: int = 0
     #: parameters taking one value per trajectory
     trajectory_params: int = 0
+    #: parts fitted each on its own whose mean is the potential (an ensemble); 1 otherwise
+    members: int = 1
+    #: the solver that fits this term when none is named: "lm" or "adam"
+    default_solver: ClassVar[str] = "lm"
+    #: whether a fit of this term returns its best iterate on the held-out arcs (an
+    #: early-stopped fit: the solver sees them) rather than running to convergence on the
+    #: training arcs, the held-out ones only checked
+    selects_on_validation: ClassVar[bool] = False
+    #: the regulariser natural to this term: "kaula" (weights :meth:`kaula_weights`),
+    #: "harmonic" (the Laplacian penalty, :mod:`hamgrav.fit.harmonic`) or None
+    natural_regulariser: ClassVar[str | None] = None
 
     @abstractmethod
     def potential(self, offset: int = 0) -> hy.expression:
@@ -64,7 +96,20 @@ class Term(ABC):
 
     @abstractmethod
     def describe(self) -> dict:
-        """Plain-data description (JSON-able), enough to rebuild the term."""
+        """Plain-data description (JSON-able): the registered ``kind`` and the constructor
+        arguments (documentation keys may follow), enough to rebuild the term."""
+
+    @classmethod
+    def from_description(cls, d: dict) -> GravityTerm:
+        """The term of :meth:`describe` output: by default the constructor called with the
+        description's entries that name its (dataclass) fields."""
+        names = {f.name for f in fields(cls)} if is_dataclass(cls) else set()
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+    @property
+    def title(self) -> str:
+        """A short name of the term for messages (e.g. "SH degree 8")."""
+        return self.kind or type(self).__name__
 
     def initial_params(self, seed: int = 0) -> np.ndarray:
         """Starting values of the learnable parameters (n_params,); zeros unless overridden."""
@@ -74,6 +119,76 @@ class Term(ABC):
         """Starting values (trajectory_params,) of one trajectory's parameters when estimated."""
         return np.zeros(self.trajectory_params)
 
+    def member(self) -> GravityTerm:
+        """One member of an ensemble as a term of its own (the term itself unless an ensemble)."""
+        return self
+
+    def split_members(self, params: np.ndarray) -> list[np.ndarray]:
+        """The members' parameter blocks of ``params`` (n_params,), member-major."""
+        params = np.asarray(params, dtype=float)
+        if params.shape != (self.n_params,):
+            raise ValueError(f"expected {self.n_params} parameters, got {params.shape}")
+        return list(params.reshape(self.members, self.n_params // self.members))
+
+    def kaula_weights(self) -> np.ndarray | None:
+        """Kaula's rule as the diagonal (n_params,) of the prior's normal matrix, to be scaled
+        by the weight alpha; None when the rule does not apply to the term."""
+        return None
+
+    def expansion(self) -> tuple[int, float] | None:
+        """(degree, reference radius [canonical]) when the term is an SH expansion of its own
+        (exported exactly at that degree and radius), else None."""
+        return None
+
+    def sh_tables(self, params, degree: int, reference_radius: float) -> SHTables | None:
+        """This term's exterior potential at parameters ``params`` as exact SH tables, degrees
+        0..``degree`` at ``reference_radius`` [canonical], scaled by mu = 1 (conventions of
+        :mod:`hamgrav.core.shexpansion`); None when it has no exact expansion (an exporter
+        projects its field on a sphere instead)."""
+        return None
+
+    def export_json(self, params=None) -> dict | None:
+        """The term's entry (plain data) in the framework-free JSON document of a model
+        (:mod:`hamgrav.io.network_json`) at learnable parameters ``params``; None when that
+        document has no place for it."""
+        return None
+
+
+#: The former name of :class:`GravityTerm`.
+Term = GravityTerm
+
+_REGISTRY: dict[str, type[GravityTerm]] = {}
+
+
+def register_term(name: str, cls: type[GravityTerm] | None = None):
+    """Register the term class ``cls`` under ``name`` (its ``kind``: how model files record
+    it); without ``cls``, a class decorator that does so."""
+
+    def register(cls: type[GravityTerm]) -> type[GravityTerm]:
+        if name in _REGISTRY and _REGISTRY[name] is not cls:
+            raise ValueError(f"a term kind {name!r} is registered already")
+        cls.kind = name
+        _REGISTRY[name] = cls
+        return cls
+
+    return register if cls is None else register(cls)
+
+
+def registered_terms() -> dict[str, type[GravityTerm]]:
+    """The registered term classes by name."""
+    return dict(_REGISTRY)
+
+
+class SHTables(NamedTuple):
+    """A term's SH tables (:meth:`GravityTerm.sh_tables`): ``c``, ``s`` (L + 1, L + 1)
+    [dimensionless, mu = 1], whether they are ``exact`` (not truncated) and a ``note``, one line
+    saying what they are."""
+
+    c: np.ndarray
+    s: np.ndarray
+    exact: bool
+    note: str
+
 
 def _hash_arrays(*arrays) -> str:
     h = hashlib.sha1()
@@ -82,8 +197,9 @@ def _hash_arrays(*arrays) -> str:
     return h.hexdigest()[:16]
 
 
+@register_term("point-mass")
 @dataclass(frozen=True)
-class PointMass(Term):
+class PointMass(GravityTerm):
     """The central term mu / r (``mu`` canonical: 1 is the body's GM)."""
 
     mu: float = 1.0
@@ -95,11 +211,24 @@ class PointMass(Term):
         return f"pm({self.mu!r})"
 
     def describe(self) -> dict:
-        return {"kind": "point-mass", "mu": self.mu}
+        return {"kind": self.kind, "mu": self.mu}
+
+    @classmethod
+    def from_description(cls, d: dict) -> PointMass:
+        return cls(float(d["mu"]))
+
+    def sh_tables(self, params, degree: int, reference_radius: float) -> SHTables:
+        c, s = np.zeros((degree + 1, degree + 1)), np.zeros((degree + 1, degree + 1))
+        c[0, 0] = self.mu
+        return SHTables(c, s, True, f"central term (GM times {self.mu!r}): C00, exact")
+
+    def export_json(self, params=None) -> dict:
+        return self.describe()
 
 
+@register_term("mascons")
 @dataclass(frozen=True, eq=False)
-class MasconTerm(Term):
+class MasconTerm(GravityTerm):
     """A fixed mascon sum sum m_i / |q - q_i| (the truth, or the shape prior as a known term),
     built by heyoka's ``model.fixed_centres_potential`` with the masses and positions
     (canonical) compiled in as constants."""
@@ -118,15 +247,41 @@ class MasconTerm(Term):
 
     def describe(self) -> dict:
         return {
-            "kind": "mascons",
+            "kind": self.kind,
             "label": self.label,
             "positions": self.mascons.positions.tolist(),
             "masses": self.mascons.masses.tolist(),
         }
 
+    @classmethod
+    def from_description(cls, d: dict) -> MasconTerm:
+        return cls(
+            MasconSet(np.asarray(d["positions"], float), np.asarray(d["masses"], float)),
+            str(d.get("label", "mascons")),
+        )
 
+    @property
+    def title(self) -> str:
+        return self.label
+
+    def sh_tables(self, params, degree: int, reference_radius: float) -> SHTables:
+        # shexpansion builds on this module's Legendre functions: imported on use
+        from .shexpansion import mascon_tables
+
+        c, s = mascon_tables(self.mascons, degree, reference_radius)
+        note = (
+            f"{self.label} ({len(self.mascons)} mascons, known, no errors): exact "
+            f"coefficients, truncated at degree {degree}"
+        )
+        return SHTables(c, s, False, note)
+
+    def export_json(self, params=None) -> dict:
+        return self.describe()
+
+
+@register_term("network")
 @dataclass(frozen=True)
-class NeuralPotential(Term):
+class NeuralPotential(GravityTerm):
     """N(q) = s (R_w / r)^3 NN(x, y, z): tanh hidden layers, one linear output.
 
     The envelope imposes the 1/r^3 decay of the slowest-fading (quadrupole) part of a
@@ -144,6 +299,12 @@ class NeuralPotential(Term):
     scale: float = 0.1
     envelope_radius: float = 1.0
     members: int = 1
+
+    # Adam is the paper's protocol; its fit stops early, so it selects on the held-out arcs
+    default_solver = "adam"
+    selects_on_validation = True
+    # the network is not harmonic by construction (SH are)
+    natural_regulariser = "harmonic"
 
     def __post_init__(self) -> None:
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
@@ -177,13 +338,6 @@ class NeuralPotential(Term):
     def member(self) -> NeuralPotential:
         """One member of the ensemble as a network of its own."""
         return NeuralPotential(self.hidden, self.scale, self.envelope_radius)
-
-    def split_members(self, params: np.ndarray) -> list[np.ndarray]:
-        """The members' parameter blocks of ``params`` (n_params,)."""
-        params = np.asarray(params, dtype=float)
-        if params.shape != (self.n_params,):
-            raise ValueError(f"expected {self.n_params} parameters, got {params.shape}")
-        return list(params.reshape(self.members, self.member_params))
 
     def network(self, offset: int = 0) -> hy.expression:
         """NN(x, y, z), dimensionless (the members' mean), parameters at ``par[offset:]``."""
@@ -229,7 +383,7 @@ class NeuralPotential(Term):
 
     def describe(self) -> dict:
         return {
-            "kind": "network",
+            "kind": self.kind,
             "hidden": list(self.hidden),
             "scale": self.scale,
             "envelope_radius": self.envelope_radius,
@@ -239,6 +393,43 @@ class NeuralPotential(Term):
                 "ffnn: weights (row-major, out x in) layer by layer, then biases; "
                 "members one after the other, the potential uses their mean"
             ),
+        }
+
+    @classmethod
+    def from_description(cls, d: dict) -> NeuralPotential:
+        return cls(
+            tuple(d["hidden"]),
+            float(d["scale"]),
+            float(d["envelope_radius"]),
+            int(d.get("members", 1)),
+        )
+
+    @property
+    def title(self) -> str:
+        return "network"
+
+    def member_layers(self, block: np.ndarray) -> dict:
+        """One member's weights (out x in, layer by layer) and biases from its parameter block
+        (heyoka ``model.ffnn`` layout: all weights row-major, then all biases)."""
+        sizes = self.layer_sizes
+        weights, biases, k = [], [], 0
+        for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True):
+            weights.append(block[k : k + n_in * n_out].reshape(n_out, n_in).tolist())
+            k += n_in * n_out
+        for n_out in sizes[1:]:
+            biases.append(block[k : k + n_out].tolist())
+            k += n_out
+        return {"weights": weights, "biases": biases}
+
+    def export_json(self, params=None) -> dict:
+        return {
+            "layer_sizes": list(self.layer_sizes),
+            "activation": "tanh",
+            "output_activation": "linear",
+            "scale": self.scale,
+            "envelope_radius": self.envelope_radius,
+            "envelope_power": 3,
+            "members": [self.member_layers(b) for b in self.split_members(params)],
         }
 
 
@@ -253,8 +444,9 @@ def sh_index(degree: int) -> list[tuple[str, int, int]]:
     return out
 
 
+@register_term("sh")
 @dataclass(frozen=True)
-class SphericalHarmonics(Term):
+class SphericalHarmonics(GravityTerm):
     """Fully normalised SH expansion of the perturbing potential, degrees 2..L.
 
     Conventions of heyoka ``model.sh_gravity_pot`` (Montenbruck & Gill: 4-pi normalised, no
@@ -269,6 +461,8 @@ class SphericalHarmonics(Term):
     degree: int
     reference_radius: float
     mu: float = 1.0
+
+    natural_regulariser = "kaula"
 
     def __post_init__(self) -> None:
         if self.degree < 2:
@@ -299,7 +493,7 @@ class SphericalHarmonics(Term):
 
     def describe(self) -> dict:
         return {
-            "kind": "sh",
+            "kind": self.kind,
             "degree": self.degree,
             "reference_radius": self.reference_radius,
             "mu": self.mu,
@@ -307,9 +501,34 @@ class SphericalHarmonics(Term):
             "layout": "l=2..L, m=0..l: C_lm then S_lm (m>0)",
         }
 
+    @classmethod
+    def from_description(cls, d: dict) -> SphericalHarmonics:
+        return cls(int(d["degree"]), float(d["reference_radius"]), float(d["mu"]))
 
+    @property
+    def title(self) -> str:
+        return f"SH degree {self.degree}"
+
+    def kaula_weights(self) -> np.ndarray:
+        """l^4 for each coefficient of degree l (Kaula's rule: sigma_l ~ 1 / l^2)."""
+        return np.array([float(l) ** 4 for _, l, _ in sh_index(self.degree)])
+
+    def expansion(self) -> tuple[int, float]:
+        return self.degree, self.reference_radius
+
+    def sh_tables(self, params, degree: int, reference_radius: float) -> SHTables:
+        # shexpansion builds on this module's Legendre functions: imported on use
+        from .shexpansion import sh_term_tables
+
+        c, s = sh_term_tables(self, params, degree, reference_radius)
+        exact = degree >= self.degree
+        note = "exact" if exact else f"truncated at degree {degree}"
+        return SHTables(c, s, exact, f"learned SH correction (degrees 2..{self.degree}): {note}")
+
+
+@register_term("srp")
 @dataclass(frozen=True)
-class SolarRadiationPressure(Term):
+class SolarRadiationPressure(GravityTerm):
     """Cannonball SRP with the Sun fixed in inertial space, so rotating in the body frame.
 
     V = -k c (s_hat(t) . q) with c the area-to-mass coefficient [m^2/kg] (one per trajectory)
@@ -348,10 +567,14 @@ class SolarRadiationPressure(Term):
 
     def describe(self) -> dict:
         return {
-            "kind": "srp",
+            "kind": self.kind,
             "pressure_canonical": self.pressure_canonical,
             "sun_latitude_deg": self.sun_latitude_deg,
         }
+
+    @classmethod
+    def from_description(cls, d: dict) -> SolarRadiationPressure:
+        return cls(float(d["pressure_canonical"]), float(d["sun_latitude_deg"]))
 
 
 def _normalised_legendre(lmax: int, t: np.ndarray) -> np.ndarray:
@@ -396,27 +619,12 @@ def sh_coefficients_of_mascons(mascons: MasconSet, degree: int, reference_radius
     return np.asarray(out)
 
 
-def term_from_description(d: dict) -> Term:
-    """Rebuild a term from :meth:`Term.describe` output (model files)."""
+def term_from_description(d: dict) -> GravityTerm:
+    """Rebuild a term from :meth:`GravityTerm.describe` output (model files), by the class
+    registered under its ``kind``."""
     if not isinstance(d, dict):
         raise ValueError(f"a term description must be a JSON object, got {d!r}")
     kind = d.get("kind")
-    if kind == "point-mass":
-        return PointMass(float(d["mu"]))
-    if kind == "mascons":
-        return MasconTerm(
-            MasconSet(np.asarray(d["positions"], float), np.asarray(d["masses"], float)),
-            str(d.get("label", "mascons")),
-        )
-    if kind == "network":
-        return NeuralPotential(
-            tuple(d["hidden"]),
-            float(d["scale"]),
-            float(d["envelope_radius"]),
-            int(d.get("members", 1)),
-        )
-    if kind == "sh":
-        return SphericalHarmonics(int(d["degree"]), float(d["reference_radius"]), float(d["mu"]))
-    if kind == "srp":
-        return SolarRadiationPressure(float(d["pressure_canonical"]), float(d["sun_latitude_deg"]))
-    raise ValueError(f"unknown term kind {kind!r}")
+    if not isinstance(kind, str) or kind not in _REGISTRY:
+        raise ValueError(f"unknown term kind {kind!r}")
+    return _REGISTRY[kind].from_description(d)

@@ -76,7 +76,6 @@ from ..core.fields import model_perturbing_potential, perturbing_potential
 from ..core.mascons import MasconSet
 from ..core.problem import ArcProblem
 from ..core.propagation import state_transition
-from ..core.terms import NeuralPotential, SphericalHarmonics
 from ..core.uncertainty import potential_sigma
 from ..errors import InputError, PropagationError
 from ..units import CanonicalUnits
@@ -130,18 +129,19 @@ def training_arcs(fitted: FittedModel, arcs: Arcs) -> np.ndarray | None:
 
 
 def _members(fitted: FittedModel) -> tuple[object, list[np.ndarray]]:
-    """(the model of one member, the members' parameter blocks): the SH model itself and its
-    parameters, or each network of an ensemble on its own."""
+    """(the model of one member, the members' parameter blocks): the model itself and its
+    parameters (SH, one network), or each network of an ensemble on its own."""
     model = fitted.model
     term = model.learnable
     if model.per_trajectory:
         raise InputError("formal covariance of models with per-trajectory terms (e.g. SRP)")
+    if term is None:
+        raise InputError(
+            "formal covariances are computed for models with a learnable term (SH, a network); "
+            "this one has the known part alone"
+        )
     theta = np.asarray(fitted.params, dtype=float)[: model.n_learn]
-    if isinstance(term, SphericalHarmonics):
-        return model, [theta]
-    if isinstance(term, NeuralPotential):
-        return replace(model, learnable=term.member()), term.split_members(theta)
-    raise InputError("formal covariances are computed for SH and network models only")
+    return model.member(), term.split_members(theta)
 
 
 @dataclass(frozen=True, eq=False)
@@ -285,7 +285,7 @@ def normal_system(
     model, e.g. from :meth:`~hamgrav.fit.estimator.GravityEstimator.harmonic_penalty`) adds
     its Gauss-Newton rows J^T J at each member's parameters to that member's normal matrix,
     as the Kaula weight does for SH: C is then the noise response of the penalised fit
-    instead of what the arcs alone constrain. SH and network models only; models with
+    instead of what the arcs alone constrain. Models with a learnable term only; models with
     per-trajectory terms raise InputError."""
     member_model, blocks = _members(fitted)
     if train is None:
@@ -342,7 +342,7 @@ def normal_system(
         middle += lt_h.T @ lt_h
     prior = [np.zeros((n_b, n_b)) for _ in blocks]
     alpha = float(fitted.solver.get("kaula_alpha", 0.0) or 0.0)
-    if alpha and isinstance(member_model.learnable, SphericalHarmonics):
+    if alpha and member_model.learnable.kaula_weights() is not None:
         prior[0] = np.diag(alpha * kaula_diagonal(problem))
     system = NormalSystem(
         tuple(normal), tuple(prior), middle, tuple(cost.tolist()), tuple(trace.tolist())

@@ -41,7 +41,6 @@ from ..core.mascons import MasconSet
 from ..core.model import DEFAULT_FIT_TOLERANCE, Model
 from ..core.problem import ArcProblem
 from ..core.propagation import propagate_batch
-from ..core.terms import NeuralPotential
 from ..errors import InputError
 from ..sim.tracking import OrbitFamily, TrackingConfig, arc_start_times, draw_orbit_start
 from ..units import CanonicalUnits
@@ -415,10 +414,10 @@ def choose_from_plans(
         raise InputError("the candidate pool lists an orbit twice")
     theta = np.asarray(theta, dtype=float)[: model.n_learn]
     term = model.learnable
-    if isinstance(term, NeuralPotential) and term.members > 1:
+    if term is not None and term.members > 1:
         # the members are fitted each on its own: one information block per member,
         # predicted under that member alone
-        member = replace(model, learnable=term.member())
+        member = model.member()
         parts = [(member, block) for block in term.split_members(theta)]
     else:
         parts = [(model, theta)]

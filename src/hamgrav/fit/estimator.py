@@ -37,7 +37,7 @@ from ..bodies.shape_prior import DEFAULT_PRIOR_MASCONS, centred_shape_prior
 from ..core.arcs import Arcs
 from ..core.model import Model, evaluate_field
 from ..core.problem import ArcProblem
-from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics, Term
+from ..core.terms import GravityTerm, MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
 from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
@@ -72,9 +72,15 @@ __all__ = [
     "validation_split",
 ]
 
-#: Learnable terms the estimator builds: a network, spherical harmonics, or none (the known
-#: part alone: point mass, or the shape prior).
-TERMS = ("network", "sh", "none")
+#: The spellings of the learnable term (CLI, TOML, configurations, ``GravityEstimator("sh")``)
+#: and the term class each names: a network, spherical harmonics, or none (the known part
+#: alone: point mass, or the shape prior). :meth:`GravityEstimator.learnable_term` builds the
+#: term of a spelling; everything else asks the term.
+TERMS: dict[str, type[GravityTerm] | None] = {
+    "network": NeuralPotential,
+    "sh": SphericalHarmonics,
+    "none": None,
+}
 
 
 #: The network fit hamgrav recommends (preset "network-best", an ensemble of three networks
@@ -279,7 +285,7 @@ def fitted_harmonic_penalty(fitted: FittedModel, arcs: Arcs, body: Body):
     covariance of the penalised fit (:func:`hamgrav.fit.covariance.normal_system`)."""
     info = fitted.solver.get("harmonic")
     term = fitted.model.learnable
-    if not info or not isinstance(term, NeuralPotential):
+    if not info or term is None or term.natural_regulariser != "harmonic":
         return None
     if int(info.get("collocation_points", -1)) != DEFAULT_COLLOCATION_POINTS:
         raise InputError(
@@ -293,7 +299,7 @@ def fitted_harmonic_penalty(fitted: FittedModel, arcs: Arcs, body: Body):
         seed=int(fitted.solver["seed"]),
         body=body,
     )
-    return estimator.harmonic_penalty(replace(fitted.model, learnable=term.member()), arcs)
+    return estimator.harmonic_penalty(fitted.model.member(), arcs)
 
 
 def truth_shell_metric(arcs: Arcs, body: Body, shell_rb: float = 1.05):
@@ -339,9 +345,15 @@ class GravityEstimator:
     """Fit a gravity correction to tracking arcs.
 
     Args:
-        term: "network", "sh" or "none" (no learnable term: the known part alone).
-        hidden: hidden layer sizes of the network.
-        degree: SH degree (reference radius = the body's Brillouin radius); "auto" or a
+        term: the learnable term, a :class:`~hamgrav.core.terms.GravityTerm` (e.g.
+            ``SphericalHarmonics(8, reference_radius)``, ``NeuralPotential((24, 24),
+            members=3)``) or None (no learnable term: the known part alone); or its spelling
+            (:data:`TERMS`): "network" (of ``hidden`` and ``members``), "sh" (of ``degree``)
+            or "none". The term decides the defaults of the solver, of whether the solver
+            sees the held-out arcs, and which regulariser applies (see ``kaula``,
+            ``harmonic``).
+        hidden: hidden layer sizes of the network (term "network").
+        degree: SH degree of term "sh" (reference radius = the body's Brillouin radius); "auto" or a
             sequence of degrees: chosen by cross-validation (see ``folds``) among
             :data:`AUTO_DEGREES` or the given ones, with the Kaula weight as given (0 when it
             is chosen too: the weight is then chosen afterwards at the chosen degree, so each
@@ -351,8 +363,8 @@ class GravityEstimator:
         prior: None (central term only) or "shape" (the constant-density shape prior, centred
             on its own centre of mass, in the known part; the term then learns the residual).
         prior_mascons: mascons of the shape prior.
-        solver: "lm", "adam", a :class:`~hamgrav.fit.base.Solver` instance, or None (Adam for
-            the network, LM for SH).
+        solver: "lm", "adam", a :class:`~hamgrav.fit.base.Solver` instance, or None (the
+            term's ``default_solver``: Adam for the network, LM for SH).
         warm_solver: the solver of warm-started fits (``init`` given), e.g. a shorter budget;
             None: the same as ``solver``.
         weighted: whiten each sample's residual by the tracking noise (:func:`noise_whitening`:
@@ -369,9 +381,10 @@ class GravityEstimator:
         validation_fraction: arcs held out for validation; None: :func:`default_holdout` of
             the arcs for a learnable term (12 %, at least 2 arcs, none below 6 arcs).
         select_on_validation: whether the solver sees the validation arcs (it then returns
-            its best-validation iterate, and may stop on them); None: for the network (an
-            early-stopped fit) but not for SH, whose LM fit runs to convergence and whose
-            held-out arcs are only checked, so that its held-out cost is an honest check.
+            its best-validation iterate, and may stop on them); None: the term's
+            ``selects_on_validation``, for the network (an early-stopped fit) but not for SH,
+            whose LM fit runs to convergence and whose held-out arcs are only checked, so
+            that its held-out cost is an honest check.
         per_trajectory: per-trajectory terms (e.g. SRP) added to the model.
         estimate_trajectory_params: estimate every trajectory's per-trajectory parameters
             together with the learnable ones; otherwise ``trajectory_values`` are data.
@@ -404,7 +417,7 @@ class GravityEstimator:
 
     def __init__(
         self,
-        term: str = "network",
+        term: GravityTerm | str | None = "network",
         *,
         hidden: Sequence[int] = (24, 24),
         degree: int = 4,
@@ -416,7 +429,7 @@ class GravityEstimator:
         kaula: float | str | None = None,
         kaula_metric: Callable | None = None,
         validation_fraction: float | None = None,
-        per_trajectory: Sequence[Term] = (),
+        per_trajectory: Sequence[GravityTerm] = (),
         estimate_trajectory_params: bool = False,
         trajectory_values: np.ndarray | None = None,
         lm_max_iter: int = 50,
@@ -462,11 +475,51 @@ class GravityEstimator:
         self.cv_rule = cv_rule
 
     # ----------------------------------------------------------------- decisions, one place
+    @property
+    def term_class(self) -> type[GravityTerm] | None:
+        """The class of the learnable term (None: there is none), known before the term is
+        built (an SH term's radius is the body's): the term's own, or the one its spelling
+        names (:data:`TERMS`)."""
+        if isinstance(self.term, GravityTerm):
+            return type(self.term)
+        if self.term is None:
+            return None
+        if not isinstance(self.term, str) or self.term not in TERMS:
+            raise InputError(
+                f"term must be one of {', '.join(TERMS)} or a GravityTerm, got {self.term!r}"
+            )
+        return TERMS[self.term]
+
+    def learnable_term(self, body: Body) -> GravityTerm | None:
+        """The learnable term of a fit for ``body`` (the one place a spelling becomes a term):
+        the estimator's term object, or the term its spelling names: the network of
+        ``hidden`` and ``members``, SH of ``degree`` at the body's Brillouin radius."""
+        if isinstance(self.term, GravityTerm):
+            if not self.term.n_params or self.term.trajectory_params:
+                raise InputError(
+                    f"the learnable term must have parameters shared by all arcs and none per "
+                    f"trajectory; {self.term.title} has {self.term.n_params} and "
+                    f"{self.term.trajectory_params} (known terms go in the prior, per-trajectory "
+                    "ones in per_trajectory)"
+                )
+            return self.term
+        if self.term_class is None:
+            return None
+        if self.term == "network":
+            if int(self.members) < 1:
+                raise InputError(f"members must be at least 1, got {self.members!r}")
+            return NeuralPotential(tuple(int(h) for h in self.hidden), members=self.members)
+        if _is_choice(self.degree):
+            raise InputError(
+                f"degree {self.degree!r} is chosen by cross-validation in fit(); a model "
+                "is built for one integer degree"
+            )
+        return SphericalHarmonics(int(self.degree), body.brillouin_radius)
+
     def build_model(self, arcs: Arcs) -> tuple[Model, dict]:
         """The model to fit to ``arcs`` and a plain-data description of its known part."""
-        if self.term not in TERMS:
-            raise InputError(f"term must be one of {', '.join(TERMS)}, got {self.term!r}")
         body = self.body_of(arcs)
+        learnable = self.learnable_term(body)
         if self.prior is None:
             known, prior_info = (PointMass(),), {"kind": "point-mass"}
         elif self.prior == "shape":
@@ -474,18 +527,6 @@ class GravityEstimator:
             known, prior_info = (MasconTerm(mascons, "shape prior"),), {"kind": "shape", **report}
         else:
             raise InputError(f"prior must be None or 'shape', got {self.prior!r}")
-        learnable: Term | None = None
-        if self.term == "network":
-            if int(self.members) < 1:
-                raise InputError(f"members must be at least 1, got {self.members!r}")
-            learnable = NeuralPotential(tuple(int(h) for h in self.hidden), members=self.members)
-        elif self.term == "sh":
-            if _is_choice(self.degree):
-                raise InputError(
-                    f"degree {self.degree!r} is chosen by cross-validation in fit(); a model "
-                    "is built for one integer degree"
-                )
-            learnable = SphericalHarmonics(int(self.degree), body.brillouin_radius)
         return Model(known, learnable, tuple(self.per_trajectory)), prior_info
 
     def body_of(self, arcs: Arcs) -> Body:
@@ -498,10 +539,12 @@ class GravityEstimator:
 
     @property
     def solver_name(self) -> str:
-        """The solver in use: as given, else Adam for the network and LM otherwise."""
+        """The solver in use: as given, else the term's default (Adam for the network, LM
+        otherwise)."""
         if isinstance(self.solver, Solver):
             return self.solver.name
-        return self.solver or ("adam" if self.term == "network" else "lm")
+        cls = self.term_class
+        return self.solver or (cls.default_solver if cls is not None else "lm")
 
     def make_solver(self) -> Solver:
         """The solver object this estimator runs."""
@@ -530,12 +573,12 @@ class GravityEstimator:
         by this one)."""
         if self.validation_fraction is not None:
             return float(self.validation_fraction)
-        return DEFAULT_VALIDATION_FRACTION if self.term != "none" else 0.0
+        return DEFAULT_VALIDATION_FRACTION if self.term_class is not None else 0.0
 
     def holdout_for(self, n_arcs: int) -> float:
         """The validation fraction of a fit of ``n_arcs`` arcs: as given, else
         :func:`default_holdout` (0 for "none")."""
-        if self.validation_fraction is not None or self.term == "none":
+        if self.validation_fraction is not None or self.term_class is None:
             return self.holdout_fraction
         return default_holdout(n_arcs)
 
@@ -544,7 +587,8 @@ class GravityEstimator:
         """Whether the solver is given the validation arcs (``select_on_validation``)."""
         if self.select_on_validation is not None:
             return bool(self.select_on_validation)
-        return self.term == "network"
+        cls = self.term_class
+        return cls is not None and cls.selects_on_validation
 
     def split(self, arcs: Arcs) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The (training, validation) arc indices of a fit on ``arcs`` (None, None: all arcs
@@ -563,6 +607,12 @@ class GravityEstimator:
         """The hyperparameters this estimator chooses by cross-validation: {name: candidates,
         simplest first} ("degree", "kaula", "harmonic"); empty when all are given."""
         out = {}
+        cls = self.term_class
+        if isinstance(self.term, GravityTerm) and _is_choice(self.degree):
+            raise InputError(
+                f"degree {self.degree!r} is chosen for the term spelled 'sh'; the term "
+                f"{self.term.title} has its own structure"
+            )
         if self.term == "sh" and _is_choice(self.degree):
             given = AUTO_DEGREES if self.degree == "auto" else self.degree
             out["degree"] = tuple(sorted(int(d) for d in given))
@@ -579,9 +629,10 @@ class GravityEstimator:
                 raise InputError(
                     f"{name} candidates must be finite and >= 0 (degrees >= 2), got {candidates}"
                 )
-        if "kaula" in out and self.term != "sh":
+        regulariser = None if cls is None else cls.natural_regulariser
+        if "kaula" in out and regulariser != "kaula":
             raise InputError("kaula applies to spherical harmonics (term 'sh')")
-        if "harmonic" in out and self.term != "network":
+        if "harmonic" in out and regulariser != "harmonic":
             raise InputError("harmonic applies to the network (term 'network')")
         if out and self.kaula in ("truth-scan", "holdout-scan"):
             raise InputError(
@@ -653,7 +704,7 @@ class GravityEstimator:
             )
         model, prior_info = self.build_model(arcs)
         problem = self._problem(model, arcs)
-        ensemble = isinstance(model.learnable, NeuralPotential) and model.learnable.members > 1
+        ensemble = model.learnable is not None and model.learnable.members > 1
         if ensemble and self.estimate_trajectory_params:
             raise InputError(
                 "an ensemble (members > 1) cannot estimate per-trajectory parameters: "
@@ -918,8 +969,8 @@ class GravityEstimator:
         one = np.arange(1)
         problem.cost(theta, one)
         term = model.learnable
-        if isinstance(term, NeuralPotential) and term.members > 1:
-            problem = self._problem(replace(model, learnable=term.member()), arcs)
+        if term is not None and term.members > 1:
+            problem = self._problem(model.member(), arcs)
             theta = term.split_members(theta)[0]
             problem.cost(theta, one)
         problem.design(theta, one)
@@ -942,7 +993,8 @@ class GravityEstimator:
         ``harmonic`` or for SH): collocation points outside the body out to the farthest
         tracked sample, seeded. For an ensemble, each member's fit uses the penalty of the
         member's model (the formal covariance rebuilds it that way)."""
-        if not self.harmonic or not isinstance(model.learnable, NeuralPotential):
+        term = model.learnable
+        if not self.harmonic or term is None or term.natural_regulariser != "harmonic":
             return None
         if self.solver_name == "adam":
             raise InputError("harmonic (the Laplacian penalty) needs the LM solver, not Adam")
@@ -964,9 +1016,7 @@ class GravityEstimator:
         comes from the other members."""
         start = time.perf_counter()
         term = problem.model.learnable
-        member_problem = self._problem(
-            replace(problem.model, learnable=term.member()), problem.arcs
-        )
+        member_problem = self._problem(problem.model.member(), problem.arcs)
         blocks = term.split_members(init)
         first = 0 if resume is None else int(resume.get("member", 0))
         results: list[SolveResult | None] = [None] * term.members
@@ -1129,7 +1179,7 @@ def _warn_if_underdetermined(problem: ArcProblem, ensemble: bool, arcs: Arcs, tr
     n_train = arcs.n_arcs if train is None else len(train)
     observations = n_train * (arcs.samples_per_arc - 1) * 6
     term = problem.model.learnable
-    n = problem.n_params - (term.n_params - term.member_params if ensemble else 0)
+    n = problem.n_params - (term.n_params - term.member().n_params if ensemble else 0)
     if n > observations:
         warnings.warn(
             f"{n} parameters{' per network' if ensemble else ''} but only {observations} "

@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.model import Model, evaluate_laplacian
-from ..core.terms import NeuralPotential
 from ..errors import InputError
 
 __all__ = ["HarmonicPenalty", "DEFAULT_COLLOCATION_POINTS"]
@@ -28,14 +27,16 @@ DEFAULT_COLLOCATION_POINTS = 1500
 class HarmonicPenalty:
     """0.5 ``weight`` sum_k ((r_k / R_w)^5 lap N(x_k))^2 for the learnable network of
     ``model`` at ``points`` (k, 3), canonical (R_w: the network's envelope radius);
-    ``weight`` is dimensionless.
+    ``weight`` is dimensionless. The learnable term is one whose natural regulariser is this
+    penalty (``natural_regulariser`` "harmonic": the network), with an ``envelope_radius``.
 
     :meth:`terms` gives the residual rows sqrt(weight) (r_k / R_w)^5 lap N(x_k) and their
     Jacobian with respect to the learnable parameters (the first ``n_learn`` of a problem's
     parameters)."""
 
     def __init__(self, model: Model, points: np.ndarray, weight: float):
-        if not isinstance(model.learnable, NeuralPotential):
+        term = model.learnable
+        if term is None or term.natural_regulariser != "harmonic":
             raise InputError("the harmonic penalty applies to a network (SH are harmonic already)")
         if not weight > 0:
             raise InputError(f"the harmonic penalty's weight must be positive, got {weight}")

@@ -11,7 +11,6 @@ import numpy as np
 import scipy.linalg
 
 from ..core.problem import ArcProblem
-from ..core.terms import SphericalHarmonics, sh_index
 from ..errors import DatasetError, PropagationError
 from .base import Outcome, Solver, SolveResult
 
@@ -19,11 +18,14 @@ __all__ = ["LevenbergMarquardt", "kaula_diagonal"]
 
 
 def kaula_diagonal(problem: ArcProblem) -> np.ndarray:
-    """K = diag(l^4) on the SH block of the parameters, 0 elsewhere (Kaula's rule)."""
+    """K = diag(l^4) on the SH block of the parameters, 0 elsewhere (Kaula's rule: the
+    learnable term's :meth:`~hamgrav.core.terms.GravityTerm.kaula_weights`; all 0 for a term
+    the rule does not apply to)."""
     k = np.zeros(problem.n_params)
     term = problem.model.learnable
-    if isinstance(term, SphericalHarmonics):
-        k[: term.n_params] = [float(l) ** 4 for _, l, _ in sh_index(term.degree)]
+    weights = None if term is None else term.kaula_weights()
+    if weights is not None:
+        k[: term.n_params] = weights
     return k
 
 

@@ -27,10 +27,7 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
-
 from .. import __version__
-from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
 from ..errors import InputError
 from ..files import atomic_path
 from ..fit.fitted import FittedModel
@@ -42,31 +39,13 @@ NETWORK_FORMAT = "hamgrav-network"
 NETWORK_FORMAT_VERSION = 1
 
 
-def _member_layers(term: NeuralPotential, block: np.ndarray) -> dict:
-    """One member's weights (out x in, layer by layer) and biases from its parameter block
-    (heyoka ``model.ffnn`` layout: all weights row-major, then all biases)."""
-    sizes = term.layer_sizes
-    weights, biases, k = [], [], 0
-    for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True):
-        weights.append(block[k : k + n_in * n_out].reshape(n_out, n_in).tolist())
-        k += n_in * n_out
-    for n_out in sizes[1:]:
-        biases.append(block[k : k + n_out].tolist())
-        k += n_out
-    return {"weights": weights, "biases": biases}
-
-
 def network_document(fitted: FittedModel) -> dict:
     """The JSON document (plain data) of a network model (see the module docstring)."""
     model = fitted.model
     term = model.learnable
-    if not isinstance(term, NeuralPotential):
-        if term is None:
-            kind = "none (the known part alone)"
-        elif isinstance(term, SphericalHarmonics):
-            kind = f"SH degree {term.degree}"
-        else:
-            kind = term.describe().get("kind", type(term).__name__)
+    entry = None if term is None else term.export_json(fitted.learnable_params)
+    if entry is None:
+        kind = "none (the known part alone)" if term is None else term.title
         raise InputError(
             f"the JSON export is for network models, this one's learnable term is {kind}; "
             "export spherical harmonics with --format icgem or shadr"
@@ -74,20 +53,10 @@ def network_document(fitted: FittedModel) -> dict:
     units = CanonicalUnits(fitted.gm_m3_s2, fitted.spin_period_s)
     known = []
     for t in model.known:
-        if isinstance(t, PointMass):
-            known.append({"kind": "point-mass", "mu": t.mu})
-        elif isinstance(t, MasconTerm):
-            known.append(
-                {
-                    "kind": "mascons",
-                    "label": t.label,
-                    "positions": t.mascons.positions.tolist(),
-                    "masses": t.mascons.masses.tolist(),
-                }
-            )
-        else:
+        known_entry = t.export_json()
+        if known_entry is None:
             raise InputError(f"cannot export a known term of kind {t.key()!r}")
-    blocks = term.split_members(fitted.learnable_params)
+        known.append(known_entry)
     return {
         "format": NETWORK_FORMAT,
         "format_version": NETWORK_FORMAT_VERSION,
@@ -114,15 +83,8 @@ def network_document(fitted: FittedModel) -> dict:
             "acceleration_m_s2": units.acceleration_m_s2,
         },
         "known": known,
-        "network": {
-            "layer_sizes": list(term.layer_sizes),
-            "activation": "tanh",
-            "output_activation": "linear",
-            "scale": term.scale,
-            "envelope_radius": term.envelope_radius,
-            "envelope_power": 3,
-            "members": [_member_layers(term, b) for b in blocks],
-        },
+        # under the term's registered name: "network" (the one learnable term with an entry)
+        term.kind: entry,
         "prior": fitted.prior.get("kind") if isinstance(fitted.prior, dict) else None,
         "not_included": [t.key() for t in model.per_trajectory],
     }

@@ -41,14 +41,11 @@ from ..core.fields import central_potential, shell_points
 from ..core.model import evaluate_field
 from ..core.shexpansion import (
     empty_tables,
-    mascon_tables,
     project_on_sphere,
     quadrature_points,
     relative_rms,
     sh_potential,
-    sh_term_tables,
 )
-from ..core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
 from ..errors import InputError
 from ..files import atomic_path
 from ..fit.fitted import FittedModel
@@ -119,9 +116,10 @@ def sh_export(
     """
     model = fitted.model
     term = model.learnable
-    if isinstance(term, SphericalHarmonics):
-        degree = term.degree if degree is None else degree
-        reference_radius = term.reference_radius if reference_radius is None else reference_radius
+    own = None if term is None else term.expansion()
+    if own is not None:
+        degree = own[0] if degree is None else degree
+        reference_radius = own[1] if reference_radius is None else reference_radius
     if degree is None or reference_radius is None:
         raise InputError("give the degree and the reference radius of the expansion")
     degree = int(degree)
@@ -134,33 +132,26 @@ def sh_export(
     sig_c, sig_s = empty_tables(degree)
     contents, exact = [], True
     for known in model.known:
-        if isinstance(known, PointMass):
-            c[0, 0] += known.mu
-            contents.append(f"central term (GM times {known.mu!r}): C00, exact")
-        elif isinstance(known, MasconTerm):
-            kc, ks = mascon_tables(known.mascons, degree, reference_radius)
-            c, s = c + kc, s + ks
-            exact = False
-            contents.append(
-                f"{known.label} ({len(known.mascons)} mascons, known, no errors): exact "
-                f"coefficients, truncated at degree {degree}"
-            )
-        else:
+        part = known.sh_tables(None, degree, reference_radius)
+        if part is None:
             raise InputError(f"cannot export a known term of kind {known.key()!r}")
+        c, s = c + part.c, s + part.s
+        exact = exact and part.exact
+        contents.append(part.note)
     params = fitted.learnable_params
-    if isinstance(term, SphericalHarmonics):
-        tc, ts = sh_term_tables(term, params, degree, reference_radius)
-        c, s = c + tc, s + ts
-        note = "exact" if degree >= term.degree else f"truncated at degree {degree}"
-        exact = exact and degree >= term.degree
-        contents.append(f"learned SH correction (degrees 2..{term.degree}): {note}")
+    part = None if term is None else term.sh_tables(params, degree, reference_radius)
+    if part is not None:
+        c, s = c + part.c, s + part.s
+        exact = exact and part.exact
+        contents.append(part.note)
         if covariance is not None:
+            # the tables are linear in the parameters: the errors map as the coefficients do
             sig = np.sqrt(np.clip(np.diag(np.asarray(covariance, dtype=float)), 0.0, None))
-            sig_c, sig_s = sh_term_tables(term, sig, degree, reference_radius)
-            sig_c, sig_s = np.abs(sig_c), np.abs(sig_s)
-    elif isinstance(term, NeuralPotential):
+            errors = term.sh_tables(sig, degree, reference_radius)
+            sig_c, sig_s = np.abs(errors.c), np.abs(errors.s)
+    elif term is not None:
         if covariance is not None:
-            raise InputError("formal errors of a projected network are not available")
+            raise InputError(f"formal errors of a projected {term.title} are not available")
 
         def learned(points):
             return evaluate_field(model, fitted.params, points, which="learnable")[0]
@@ -170,13 +161,11 @@ def sh_export(
         exact = False
         rings = int(n_lat or len(quadrature_points(degree, reference_radius)[1]) ** 0.5 / 2**0.5)
         contents.append(
-            f"learned network correction ({term.n_params} parameters): projected on the "
+            f"learned {term.title} correction ({term.n_params} parameters): projected on the "
             f"sphere r = R by Gauss-Legendre quadrature ({rings} x {2 * rings} nodes) to "
-            f"degree {degree}; the network is neither band-limited nor exactly harmonic, "
+            f"degree {degree}; the {term.title} is neither band-limited nor exactly harmonic, "
             "see the accuracy lines"
         )
-    elif term is not None:
-        raise InputError(f"cannot export a learnable term of kind {term.key()!r}")
     if model.per_trajectory:
         contents.append("not included: per-trajectory terms (e.g. SRP), which are not gravity")
 
@@ -187,7 +176,7 @@ def sh_export(
         v_file = sh_potential(c, s, reference_radius, pts)
         central = central_potential(pts)
         accuracy[f"r{k:g}R"] = relative_rms(v_file - central, v_model - central)
-    has_errors = covariance is not None and isinstance(term, SphericalHarmonics)
+    has_errors = covariance is not None and part is not None
     return SHExport(
         c=c,
         s=s,
