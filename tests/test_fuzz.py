@@ -802,3 +802,62 @@ def test_a_misshapen_origin_is_refused_on_one_line(kind, tmp_path):
             reader(path)
     message = str(info.value)
     assert "\n" not in message and "body_origin_m" in message and "shape (2, 2, 2)" in message
+
+
+# ------------------------------------------------------------------------------ results.json
+RESULTS_DIR = Path(__file__).resolve().parents[1] / "results"
+#: Committed results of several experiments, each edited by hand in the fuzz cases below.
+FUZZED_RESULTS = ("descent-itokawa-extended", "own-body", "selection-itokawa-sh", "swarm-bennu")
+JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers(-5, 10**6) | st.floats() | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner),
+    max_leaves=6,
+)
+
+
+def _paths(node, prefix=()):
+    """Every key path of a JSON document (dict keys and list indices)."""
+    yield prefix
+    items = (
+        node.items()
+        if isinstance(node, dict)
+        else enumerate(node)
+        if isinstance(node, list)
+        else ()
+    )
+    for key, value in items:
+        yield from _paths(value, (*prefix, key))
+
+
+@settings(FUZZ, max_examples=150)
+@given(data=st.data())
+def test_fuzz_hand_edited_results_json(data):
+    """experiment readme on a hand-edited results.json: a README (status 0) or one line
+    naming the problem (status 2) that keeps the old README; never a bug, never a stray
+    file."""
+    CASES["results.json"] += 1
+    name = data.draw(st.sampled_from([n for n in FUZZED_RESULTS if (RESULTS_DIR / n).is_dir()]))
+    report = json.loads((RESULTS_DIR / name / "results.json").read_text())
+    paths = [p for p in _paths(report) if p]
+    path = data.draw(st.sampled_from(paths))
+    parent = report
+    for key in path[:-1]:
+        parent = parent[key]
+    if data.draw(st.booleans()) and isinstance(parent, dict):
+        del parent[path[-1]]
+    else:
+        parent[path[-1]] = data.draw(JSON_VALUES)
+    folder = _fresh_folder() / name
+    folder.mkdir()
+    (folder / "results.json").write_text(json.dumps(report))
+    (folder / "README.md").write_text("before")
+    result = runner.invoke(COMMAND, ["experiment", "readme", str(folder)])
+    assert result.exit_code in (0, 2), (path, result.exit_code, result.output, result.exception)
+    assert result.exception is None or isinstance(result.exception, SystemExit), path
+    if result.exit_code == 2:
+        assert result.output.strip().startswith("error:"), result.output
+        assert "Traceback" not in result.output and "internal error" not in result.output
+        assert (folder / "README.md").read_text() == "before", path
+    else:
+        assert (folder / "README.md").read_text() != "before", path
+    assert sorted(p.name for p in folder.iterdir()) == ["README.md", "results.json"], path
