@@ -314,7 +314,13 @@ def list_bodies(folder: str | os.PathLike | None = None) -> list[str]:
 def _catalogue_entry(name: str, folder: Path) -> dict:
     """The catalogue entry of body ``name`` in ``folder``; :class:`BodyDataError` naming the
     known bodies when there is none."""
-    catalogue = read_catalogue(folder)
+    try:
+        catalogue = read_catalogue(folder)
+    except BodyDataError as exc:  # no catalogue to look in: the name is unknown either way
+        raise BodyDataError(
+            f"unknown body {name!r}: {str(exc).rstrip('.')}, or give a body TOML file (a path "
+            "ending in .toml)"
+        ) from None
     key = name.strip().lower()
     if key not in catalogue:
         raise BodyDataError(
