@@ -526,6 +526,41 @@ def simulate(
     )
 
 
+def _rotation_option(pole_ra, pole_dec, prime_meridian, rotation_epoch, body):
+    """The rotation model of the import commands' pole options (None when none is given),
+    at the body's spin rate; all three angles or none."""
+    from .bodies.rotation import RotationModel
+
+    given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
+    if any(given) and not all(given):
+        raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
+    if not all(given):
+        return None
+    return RotationModel(pole_ra, pole_dec, prime_meridian, body.spin_period_s, rotation_epoch)
+
+
+def _origin_option(origin: str | None):
+    """The import commands' --origin x,y,z [m] as three floats (None when not given)."""
+    if origin is None:
+        return None
+    origin_m = _floats(origin, "--origin")
+    if len(origin_m) != 3:
+        raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
+    return origin_m
+
+
+def _say_imported(arcs, output: Path, source: str) -> None:
+    """One line on the arcs an import wrote: counts, frames, epoch, noise, dropped samples."""
+    cfg = arcs.config
+    console.print(
+        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples {source} to {output} "
+        f"(frames: {', '.join(cfg['frames'])}; canonical time 0 = {cfg['epoch_tdb']} TDB; "
+        f"noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} m, sigma_v "
+        f"{arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
+        highlight=False,
+    )
+
+
 @_command(app, "import-oem")
 def import_oem_command(
     files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="CCSDS OEM files.")],
@@ -576,25 +611,13 @@ def import_oem_command(
     body's rotation model (pole and prime meridian from the options or the catalogue, spin
     rate from the body's spin period). The arcs carry no truth: fit them, and evaluate
     reports residuals against the noise."""
-    from .bodies.rotation import RotationModel
     from .io.arcs import save_arcs
     from .io.oem_import import import_oem
 
     _output(output, **{f"FILE {f}": f for f in files})
     body_obj = load_body(body_name)
-    rotation = None
-    given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
-    if any(given) and not all(given):
-        raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
-    if all(given):
-        rotation = RotationModel(
-            pole_ra, pole_dec, prime_meridian, body_obj.spin_period_s, rotation_epoch
-        )
-    origin_m = None
-    if origin is not None:
-        origin_m = _floats(origin, "--origin")
-        if len(origin_m) != 3:
-            raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
+    rotation = _rotation_option(pole_ra, pole_dec, prime_meridian, rotation_epoch, body_obj)
+    origin_m = _origin_option(origin)
     arcs = import_oem(
         files,
         body_obj,
@@ -607,14 +630,7 @@ def import_oem_command(
         origin_m=origin_m,
     )
     save_arcs(arcs, output)
-    cfg = arcs.config
-    console.print(
-        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples from {len(files)} files "
-        f"to {output} (frames: {', '.join(cfg['frames'])}; canonical time 0 = "
-        f"{cfg['epoch_tdb']} TDB; noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} "
-        f"m, sigma_v {arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
-        highlight=False,
-    )
+    _say_imported(arcs, output, f"from {len(files)} files")
 
 
 @_command(app, "import-spk")
@@ -691,25 +707,13 @@ def import_spk_command(
     or FK), else in J2000 rotated with a rotation model (the options, hamgrav's own SPK
     comment, or the catalogue). The arcs carry no truth: fit them, and evaluate reports
     residuals against the noise."""
-    from .bodies.rotation import RotationModel
     from .io.arcs import save_arcs
     from .io.spk import import_spk
 
     _output(output, **{f"KERNEL {k}": k for k in kernels})
     body_obj = load_body(body_name)
-    rotation = None
-    given = [v is not None for v in (pole_ra, pole_dec, prime_meridian)]
-    if any(given) and not all(given):
-        raise InputError("give all of --pole-ra, --pole-dec and --prime-meridian, or none")
-    if all(given):
-        rotation = RotationModel(
-            pole_ra, pole_dec, prime_meridian, body_obj.spin_period_s, rotation_epoch
-        )
-    origin_m = None
-    if origin is not None:
-        origin_m = _floats(origin, "--origin")
-        if len(origin_m) != 3:
-            raise InputError(f"--origin must be three numbers x,y,z [m], got {origin!r}")
+    rotation = _rotation_option(pole_ra, pole_dec, prime_meridian, rotation_epoch, body_obj)
+    origin_m = _origin_option(origin)
     arcs = import_spk(
         kernels,
         body_obj,
@@ -727,14 +731,7 @@ def import_spk_command(
         centre=center,
     )
     save_arcs(arcs, output)
-    cfg = arcs.config
-    console.print(
-        f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples of {arcs.n_trajectories} "
-        f"targets to {output} (frames: {', '.join(cfg['frames'])}; canonical time 0 = "
-        f"{cfg['epoch_tdb']} TDB; noise from {cfg['noise_from']}: sigma_r {arcs.sigma_r_m:.4g} "
-        f"m, sigma_v {arcs.sigma_v_m_s:.4g} m/s; {cfg['dropped_samples']} samples dropped)",
-        highlight=False,
-    )
+    _say_imported(arcs, output, f"of {arcs.n_trajectories} targets")
 
 
 def _model_option(model: str) -> dict:

@@ -34,6 +34,7 @@ from ..bodies.evaluation import evaluation_sets
 from ..bodies.files import read_body_toml
 from ..bodies.interiors import build_truth
 from ..bodies.shapes import read_shape, write_icq
+from ..core.fields import relative_field_error
 from ..core.mascons import mascon_potential
 from ..core.shexpansion import sh_potential
 from ..errors import InputError
@@ -144,10 +145,6 @@ def row_settings(row: str, config: OwnBodyConfig) -> dict:
     return {"term": "sh", "degree": 8}
 
 
-def _relative(approx: np.ndarray, truth: np.ndarray) -> float:
-    return float(np.sqrt(np.sum((approx - truth) ** 2) / np.sum(truth**2)))
-
-
 class OwnBodyExperiment(Experiment):
     """See the module docstring."""
 
@@ -220,7 +217,7 @@ class OwnBodyExperiment(Experiment):
                 for k, p in sets.items():
                     points_m = p * length
                     model_v = fitted.potential(points_m) - gm / np.linalg.norm(points_m, axis=1)
-                    field_error[row][k] = round(_relative(model_v, truth_v[k]), 4)
+                    field_error[row][k] = round(relative_field_error(model_v, truth_v[k]), 4)
                 term = fitted.model.learnable
                 degree = getattr(term, "degree", 8)
                 export = sh_export(
@@ -241,7 +238,7 @@ class OwnBodyExperiment(Experiment):
                     v = sh_potential(
                         export.c, export.s, export.reference_radius_m, points_m, export.gm_m3_s2
                     ) - export.gm_m3_s2 / np.linalg.norm(points_m, axis=1)
-                    export_error[row][k] = round(_relative(v, truth_v[k]), 4)
+                    export_error[row][k] = round(relative_field_error(v, truth_v[k]), 4)
                 say(
                     f"{row}: {fits[row]['outcome']}, field error "
                     + ", ".join(f"{k} {v:.3f}" for k, v in field_error[row].items())
