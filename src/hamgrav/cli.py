@@ -376,21 +376,7 @@ def _body_for(spec: str | None, arcs=None, fitted=None):
 
     if spec is None:
         return body_for_arcs(arcs) if arcs is not None else body_for_model(fitted)
-    body = load_body(spec)
-    if arcs is not None:
-        return body_with_arcs(body, arcs, f"--body {spec}")
-    for name, unit in (("gm_m3_s2", "m^3/s^2"), ("spin_period_s", "s")):
-        if not math.isclose(getattr(body, name), getattr(fitted, name), rel_tol=1e-12):
-            raise InputError(
-                f"--body {spec} has {name} {getattr(body, name)!r} {unit}, the model "
-                f"{getattr(fitted, name)!r} {unit}; give the body the model was fitted for"
-            )
-    return replace(
-        body,
-        gm_m3_s2=float(fitted.gm_m3_s2),
-        spin_period_s=float(fitted.spin_period_s),
-        origin_m=tuple(float(v) for v in fitted.body_origin_m),
-    )
+    return body_with_arcs(load_body(spec), arcs if arcs is not None else fitted, f"--body {spec}")
 
 
 @_command(app)

@@ -184,3 +184,16 @@ def test_a_body_given_with_rounded_constants_takes_the_arcs(rock, rock_arcs_file
     assert fitted.body.gm_m3_s2 == arcs.gm_m3_s2 == fitted.gm_m3_s2
     again = load_model(save_model(fitted, tmp_path / "m.h5"))
     assert again.body.gm_m3_s2 == arcs.gm_m3_s2
+
+
+def test_body_option_must_agree_with_the_model(rock_arcs_file, tmp_path):
+    model = tmp_path / "m.h5"
+    fit = ["fit", str(rock_arcs_file), "--model", "network", "--hidden", "4", "--steps", "2"]
+    assert runner.invoke(app, [*fit, "-o", str(model)]).exit_code == 0
+    out = tmp_path / "m.gfc"
+    result = runner.invoke(
+        app, ["export", str(model), "--format", "icgem", "--body", "synthetic", "-o", str(out)]
+    )
+    assert result.exit_code == 2
+    assert "--body synthetic has GM" in result.output and "the model was fitted" in result.output
+    assert not out.exists()

@@ -200,29 +200,32 @@ def body_for_model(fitted: FittedModel, folder=None) -> Body:
     return body_in_frame(fitted.body_name, fitted.body_origin_m, folder)
 
 
-def body_with_arcs(body: Body, arcs: Arcs, what: str = "the body") -> Body:
-    """``body`` (given by the user: a catalogue name, files, or a :class:`Body`) in the arcs'
-    frame, checked against them: its GM and spin period must be the arcs' (they fix the
-    canonical units), and a shape other than the one the arcs record is warned about.
-    ``what`` names the body in messages (e.g. "--body didymos.toml")."""
+def body_with_arcs(body: Body, arcs: Arcs | FittedModel, what: str = "the body") -> Body:
+    """``body`` (given by the user: a catalogue name, files, or a :class:`Body`) in the frame
+    of ``arcs`` (or of a fitted model, which records the same numbers), checked against
+    them: its GM and spin period must be theirs (they fix the canonical units), and a shape
+    other than the one they record is warned about. ``what`` names the body in messages
+    (e.g. "--body didymos.toml")."""
+    model = isinstance(arcs, FittedModel)
+    them = "the model" if model else "the arcs"
+    made = f"{them} {'was fitted' if model else 'were made'}"
     for name, mine, theirs, unit in (
         ("GM", body.gm_m3_s2, arcs.gm_m3_s2, "m^3/s^2"),
         ("spin period", body.spin_period_s, arcs.spin_period_s, "s"),
     ):
         if not math.isclose(float(mine), float(theirs), rel_tol=1e-12):
             raise InputError(
-                f"{what} has {name} {mine} {unit} but the arcs were made with {theirs} {unit}; "
-                "use the body the arcs were made with (or leave the body out: the arcs "
-                "record theirs)"
+                f"{what} has {name} {mine} {unit} but {made} with {theirs} {unit}; use the "
+                "body they were made with (or leave the body out: the files record theirs)"
             )
     if arcs.body is not None and arcs.body.mesh_sha256 != body.mesh_sha256:
         warnings.warn(
-            f"{what} has another shape than the arcs record (mesh digest "
+            f"{what} has another shape than {them} record (mesh digest "
             f"{body.mesh_sha256[:12]} against {arcs.body.mesh_sha256[:12]}); using {what}",
             HamgravWarning,
             stacklevel=2,
         )
-    # the arcs' own numbers, which fix the canonical units the fit works in
+    # their own numbers, which fix the canonical units the fit works in
     return replace(
         body,
         gm_m3_s2=float(arcs.gm_m3_s2),
