@@ -143,3 +143,68 @@ def test_body_mascons_in_exponent_notation_are_read():
     result = runner.invoke(app, ["body", "synthetic", "--json", "--mascons", "2e2"])
     assert result.exit_code == 0, result.output
     assert '"truth_mascons": 200' in result.output
+
+
+def test_experiments_too_big_for_memory_are_refused_before_they_run(tmp_path):
+    # every option within its bound, their product not: 1000 orbits x 10 000 arcs
+    out = tmp_path / "out"
+    result = runner.invoke(
+        app,
+        [
+            "experiment",
+            "descent",
+            "--body",
+            "synthetic",
+            "--orbits",
+            "1000",
+            "--arcs-per-orbit",
+            "10000",
+            "-o",
+            str(out),
+            "--max-memory",
+            "16GiB",
+        ],
+    )
+    _error(
+        result,
+        "experiment descent needs about 77.7 GiB of memory",
+        "(of which the arcs (1000 orbits x 10000 arcs x 40 samples)",
+        "more than --max-memory 16GiB; lower --orbits, --arcs-per-orbit, --hidden or the SH "
+        "degrees, or pass --max-memory SIZE",
+    )
+    # by default, against the memory this machine has
+    huge = ["--hidden", "1024,1024,1024"]
+    result = runner.invoke(app, ["experiment", "swarm", "--body", "synthetic", *huge])
+    text, _ = _error(result, "experiment swarm needs about", "TiB of memory")
+    assert "of memory available" in text and not out.exists()
+    # repetitions at once on a LocalCluster multiply; the figure and the fix say so
+    # (two layers of 128: 17 153 weights and 28 A/m, a 2.2 GiB normal matrix three times)
+    one = ["experiment", "swarm", "--body", "synthetic", "--hidden", "128,128", "-o", str(out)]
+    result = runner.invoke(app, [*one, "--max-memory", "8GiB"])
+    _error(result, "experiment swarm needs about 10.7 GiB", "more than --max-memory 8GiB;")
+    result = runner.invoke(app, [*one, "--repeat", "4", "--workers", "2", "--max-memory", "16GiB"])
+    _error(
+        result,
+        "experiment swarm (2 repetitions at once) needs about 21.3 GiB",
+        "lower --arcs, --samples-per-arc, --hidden or the SH degrees, or run fewer --workers",
+    )
+    assert not out.exists()
+
+
+def test_experiment_sizes_count_the_largest_fit_of_each_experiment():
+    from hamgrav.experiments.runner import check_job_memory, experiment_names, get_experiment
+    from hamgrav.sizing import fit_bytes
+
+    for name in experiment_names():
+        experiment = get_experiment(name)
+        config = experiment.default_config()
+        parts = config.memory_parts()
+        # every experiment is sized, and its default run fits in a laptop's memory
+        assert parts and 0 < sum(parts.values()) < 2**30, name
+        check_job_memory(experiment, config, repeat=8, workers=2, max_memory="2GiB")
+    # the largest of the selection experiment's fits: SH 12 (165 coefficients) against a
+    # [24, 24] network (721 parameters), on its 16 x 7 arcs of 40 samples
+    parts = get_experiment("selection").default_config().memory_parts()
+    expected = fit_bytes(112, 40, 721)
+    for what in ("the variational integrator", "the normal matrices (721 x 721)"):
+        assert parts[what] == expected[what]

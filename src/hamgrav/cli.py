@@ -1719,7 +1719,9 @@ experiment_app = typer.Typer(
 app.add_typer(experiment_app, name="experiment")
 
 
-def _run_and_report(experiment, config, *, seed, repeat, output, workers, scheduler, command):
+def _run_and_report(
+    experiment, config, *, seed, repeat, output, workers, scheduler, command, max_memory=None
+):
     from .experiments.runner import run_experiment
 
     report, outputs = run_experiment(
@@ -1732,6 +1734,7 @@ def _run_and_report(experiment, config, *, seed, repeat, output, workers, schedu
         scheduler=scheduler,
         command=command,
         say=_say,
+        max_memory=max_memory,
     )
     return report, outputs
 
@@ -1747,8 +1750,10 @@ def _experiment_command(experiment):
     def command(**kwargs):
         given = dict(kwargs)
         runner = {
-            k: kwargs.pop(k) for k in ("config", "seed", "repeat", "output", "workers", "scheduler")
+            k: kwargs.pop(k)
+            for k in ("config", "seed", "repeat", "output", "workers", "scheduler", "max_memory")
         }
+        given.pop("max_memory")  # a limit of this machine, not of the results: not recorded
         given["output"] = runner["output"] or experiment.default_output
         for name, default in (("repeat", 1), ("workers", 0)):
             if given[name] == default:
@@ -1773,6 +1778,7 @@ def _experiment_command(experiment):
             workers=runner["workers"],
             scheduler=runner["scheduler"],
             command=_command_line(["experiment", experiment.name], given),
+            max_memory=runner["max_memory"],
         )
         console.print(f"wrote {output}/results.json, README.md and figures ({report['wall_s']} s)")
 
@@ -1799,6 +1805,14 @@ def _experiment_command(experiment):
         ("output", Path | None, None, f"Output folder [default: {experiment.default_output}]."),
         ("workers", int, 0, "Run on a Dask LocalCluster of N worker processes (0: in-process)."),
         ("scheduler", str | None, None, "Address of an existing Dask scheduler."),
+        (
+            "max_memory",
+            str | None,
+            None,
+            "Refuse the run before it starts if the repetitions that run at once need more "
+            "memory than this (e.g. 8GiB; default: the memory available now; per worker with "
+            "--scheduler, where nothing is checked without it).",
+        ),
     ]
     for name, kind, default, text in runner_params:
         opt = (

@@ -47,8 +47,12 @@ def test_volume_samples_fill_the_shape(synthetic):
 
 
 def test_head_tail_contrast(synthetic):
-    # more mascons than volume samples: every sample is its own mascon, densities visible
-    truth = build_truth(synthetic, "head-tail", n_mascons=10_000, samples=4000, recentre=False)
+    # as many mascons as volume samples: every sample is its own mascon, densities visible
+    from hamgrav.bodies.interiors import volume_samples
+
+    n = len(volume_samples(synthetic, 4000))
+    truth = build_truth(synthetic, "head-tail", n_mascons=n, samples=4000, recentre=False)
+    assert len(truth.mascons) == n
     masses = truth.mascons.masses
     light, heavy = masses.min(), masses.max()
     assert heavy / light == pytest.approx(2.0, rel=1e-12)
@@ -161,3 +165,16 @@ def test_campaign_frame_and_contrast_reach_the_truth():
     truth = build_campaign_truth(Campaign.from_dict({**data, "contrast": 1.5, "frame": "shape"}))
     assert truth.parameters["contrast"] == 1.5 and truth.parameters["frame"] == "shape"
     assert build_campaign_truth(Campaign.from_dict(data)).parameters["contrast"] == 2.0
+
+
+def test_void_gives_every_mascon_asked_for(synthetic):
+    # a cavity empties 18 % of the volume samples: asking for more mascons than the samples
+    # it leaves used to return that many mascons without a word
+    from hamgrav.bodies.interiors import volume_samples
+
+    samples = 2000
+    left = int(round(0.82 * len(volume_samples(synthetic, samples))))
+    truth = build_truth(synthetic, "void", n_mascons=left + 200, samples=samples, seed=4)
+    assert len(truth.mascons) == left + 200
+    assert truth.parameters["volume_samples"] > samples
+    assert truth.mascons.masses.sum() == pytest.approx(1.0, rel=1e-12)

@@ -283,6 +283,25 @@ def build_truth(
         }
 
     n_background = n_mascons - (len(extra) if extra is not None else 0)
+    usable = int(np.count_nonzero(weights))
+    if usable < n_background:
+        # fewer weighted samples than mascons (a cavity empties a fifth of them): on a grid
+        # fine enough for twice the mascons, never fewer mascons than asked without a word
+        return build_truth(
+            body,
+            interior,
+            n_mascons=n_mascons,
+            seed=seed,
+            recentre=recentre,
+            frame=frame,
+            contrast=contrast,
+            void_fraction=void_fraction,
+            void_offset=void_offset,
+            anomaly_count=anomaly_count,
+            anomaly_mass_fraction=anomaly_mass_fraction,
+            anomaly_depth_ratio=anomaly_depth_ratio,
+            samples=int(np.ceil(2.0 * samples * n_background / max(usable, 1))),
+        )
     mascons = compress(points, weights, n_background, seed=seed)
     if extra is not None:
         scale = 1.0 - extra.total_mass

@@ -22,7 +22,8 @@ from ..fit.estimator import (
 )
 from ..sim.campaign import MAX_TRUTH_MASCONS, Campaign, run_campaign
 from ..sim.tracking import MAX_ORBIT_RADIUS_RB, TrackingConfig, orbit_grid
-from .config import ExperimentConfig, label, option
+from ..sizing import fit_bytes
+from .config import ExperimentConfig, label, largest_parameters, option
 from .runner import RunContext
 
 __all__ = [
@@ -129,6 +130,17 @@ class CampaignConfig(ExperimentConfig):
         # the campaign file's checks (orbit radii and count, tracking, truth mascons) apply
         # to an experiment's campaign too, before anything runs
         Campaign.from_dict(self.campaign(0).as_dict(), source="campaign")
+
+    memory_fix = "lower --orbits, --arcs-per-orbit, --hidden or the SH degrees"
+
+    def memory_parts(self) -> dict[str, float]:
+        """Its campaign's simulation and its largest fit's arrays [bytes] (the campaign's arcs
+        are the fit's: counted once)."""
+        campaign = self.campaign(0)
+        n_arcs = self.orbits * self.arcs_per_orbit
+        fit = fit_bytes(n_arcs, campaign.tracking.samples_per_arc, largest_parameters(self))
+        del fit["the arcs"]
+        return campaign.memory_parts() | fit
 
     def campaign(self, seed: int) -> Campaign:
         """The campaign this config describes, seeded."""

@@ -13,7 +13,19 @@ from pathlib import Path
 from ..errors import InputError
 from ..files import read_toml
 
-__all__ = ["ExperimentConfig", "option", "label", "COMMAND_LINE"]
+__all__ = ["ExperimentConfig", "option", "label", "largest_parameters", "COMMAND_LINE"]
+
+#: Options holding SH degrees (one or several) in the experiments' configs: the largest sets
+#: the parameter count of the largest SH fit (see :func:`largest_parameters`).
+SH_DEGREE_OPTIONS = (
+    "sh_degrees",
+    "sh_degree",
+    "kaula_degrees",
+    "descent_degrees",
+    "map_degrees",
+    "gravity_only_degree",
+    "max_degree",
+)
 
 #: The ``source`` of a config built from command-line options: its errors name the options
 #: (``--shells-rb``) rather than the keys of a config file (``shells_rb``).
@@ -175,5 +187,32 @@ class ExperimentConfig:
             k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()
         }
 
+    #: what to lower when one repetition does not fit in memory (the sizing error's fix)
+    memory_fix: typing.ClassVar[str] = "lower the experiment's sizes"
+
+    def memory_parts(self) -> dict[str, float]:
+        """The largest arrays one repetition holds at its peak [bytes] (:mod:`hamgrav.sizing`),
+        from the options alone, so that a job that cannot fit is refused before it starts;
+        empty: nothing to size (subclasses with campaigns and fits fill it in)."""
+        return {}
+
     def check(self) -> None:
         """Raise :class:`InputError` for invalid values (subclasses extend this)."""
+
+
+def largest_parameters(config: ExperimentConfig) -> int:
+    """Parameters of the largest fit ``config`` asks for: one network of its ``hidden`` layers
+    (members are fitted one at a time) or the SH expansion of its highest degree among
+    :data:`SH_DEGREE_OPTIONS`, (L + 1)^2 - 4 coefficients; 0 when it has neither."""
+    from ..sizing import network_parameters
+
+    counts = [0]
+    if getattr(config, "hidden", None):
+        counts.append(network_parameters(config.hidden))
+    for name in SH_DEGREE_OPTIONS:
+        degrees = getattr(config, name, None)
+        if degrees is None:
+            continue
+        for degree in degrees if isinstance(degrees, tuple) else (degrees,):
+            counts.append((int(degree) + 1) ** 2 - 4)
+    return max(counts)

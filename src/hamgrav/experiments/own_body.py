@@ -84,6 +84,18 @@ class OwnBodyConfig(ExperimentConfig):
     folds: int = option(5, "Cross-validation folds of sh-auto.", at_least=2, at_most=20)
     rows: tuple[str, ...] = option(OWN_BODY_ROWS, "Rows to fit.", nonempty=True)
 
+    memory_fix = "lower --orbits, --arcs-per-orbit or --max-degree"
+
+    def memory_parts(self) -> dict[str, float]:
+        """Its arcs and its largest fit's arrays [bytes] (network-best's network or the SH
+        expansion of the highest degree)."""
+        from ..sizing import fit_bytes, network_parameters
+
+        hidden = GravityEstimator().hidden  # network-best's network: the estimator's default
+        n_params = max((self.max_degree + 1) ** 2 - 4, network_parameters(hidden))
+        samples = TrackingConfig().samples_per_arc
+        return fit_bytes(self.orbits * self.arcs_per_orbit, samples, n_params)
+
     def check(self) -> None:
         if len(self.pole_deg) != 2 or not -90 <= self.pole_deg[1] <= 90:
             raise InputError(f"{label('pole_deg')} must be (ra, dec) with dec in [-90, 90]")

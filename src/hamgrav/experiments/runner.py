@@ -43,6 +43,7 @@ __all__ = [
     "experiment_names",
     "run_unit",
     "run_experiment",
+    "check_job_memory",
     "rerender_readme",
     "aggregate",
     "summarise",
@@ -308,9 +309,13 @@ def run_experiment(
     command: str = "",
     say: Callable[[str], None] | None = None,
     verbose: bool = True,
+    max_memory: str | None = None,
 ) -> tuple[dict, list[RunOutput]]:
     """Run ``repeat`` repetitions (seeds ``seed``, ``seed + 1``, ...) of ``experiment`` and,
     with ``output``, write results.json, README.md and the figures there.
+
+    The repetitions that run at once are sized first (:func:`check_job_memory`) against
+    ``max_memory`` (``8GiB``...; default: the memory available now).
 
     Returns the report (results.json's content) and the repetitions' outputs in seed order.
     """
@@ -324,6 +329,7 @@ def run_experiment(
         raise InputError(f"--repeat must be at least 1, got {repeat}")
     if workers and scheduler:
         raise InputError("give --workers or --scheduler, not both (a scheduler has its workers)")
+    check_job_memory(experiment, config, repeat, workers, scheduler, max_memory)
     say = say or _stderr_say("")
     seeds = [int(seed) + i for i in range(repeat)]
     folder = str(bodies_dir())
@@ -379,6 +385,33 @@ def run_experiment(
     if output is not None:
         write_report(experiment, report, ordered[0].artefacts, Path(output))
     return report, ordered
+
+
+def check_job_memory(
+    experiment: Experiment,
+    config: ExperimentConfig,
+    repeat: int,
+    workers: int = 0,
+    scheduler: str | None = None,
+    max_memory: str | None = None,
+) -> None:
+    """Refuse, in one line with the figure and the fix, a run whose repetitions at once (one
+    in-process, up to ``workers`` on a LocalCluster) need more memory than ``max_memory`` or,
+    by default, than this machine has available. On an existing ``scheduler`` the workers'
+    memory is not this machine's: the run is sized only against a stated ``max_memory``
+    (per worker)."""
+    from ..sizing import check_memory, memory_limit
+
+    if scheduler and max_memory is None:
+        return
+    limit = memory_limit(max_memory)
+    at_once = 1 if scheduler else max(1, min(repeat, workers or 1))
+    parts = {what: at_once * size for what, size in config.memory_parts().items()}
+    fix = config.memory_fix + (", or run fewer --workers" if at_once > 1 else "")
+    job = f"experiment {experiment.name}"
+    if at_once > 1:
+        job += f" ({at_once} repetitions at once)"
+    check_memory(job, parts, limit, fix)
 
 
 def write_report(experiment: Experiment, report: dict, artefacts: dict, folder: Path) -> None:

@@ -39,6 +39,7 @@ from ..errors import InputError, PropagationError
 from ..fit.estimator import PRESETS, preset
 from ..fit.selection import RULES, choose
 from ..sim.particles import SwarmConfig, simulate_swarm, solar_radiation_pressure
+from ..sizing import fit_bytes
 from .common import (
     errors_of,
     fit,
@@ -48,7 +49,7 @@ from .common import (
     network_best,
     sets_for,
 )
-from .config import ExperimentConfig, label, option
+from .config import ExperimentConfig, label, largest_parameters, option
 from .runner import (
     Experiment,
     RunContext,
@@ -194,6 +195,14 @@ class SwarmExperimentConfig(ExperimentConfig):
         except InputError as exc:
             # name the command-line option: SwarmConfig's fields are this config's options
             raise InputError(f"swarm option: {exc}") from None
+
+    memory_fix = "lower --arcs, --samples-per-arc, --hidden or the SH degrees"
+
+    def memory_parts(self) -> dict[str, float]:
+        """Its arcs and its largest fit's arrays [bytes]: the network or SH expansion and one
+        A/m per particle."""
+        n_params = largest_parameters(self) + self.particles
+        return fit_bytes(self.arcs, self.samples_per_arc, n_params)
 
     def swarm(self) -> SwarmConfig:
         """The particle campaign of this config."""
