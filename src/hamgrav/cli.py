@@ -13,6 +13,7 @@ the file, and leaves no part of the file behind.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import sys
 import threading
@@ -91,7 +92,7 @@ with _DeferInterrupt():
 
     from .bodies.catalogue import load_body
     from .bodies.interiors import DEFAULT_TRUTH_MASCONS
-    from .errors import DiskError, HamgravError, HamgravWarning, InputError
+    from .errors import DiskError, DistributedError, HamgravError, HamgravWarning, InputError
     from .files import (
         check_output,
         check_writable_folder,
@@ -865,6 +866,17 @@ def fit(
     ] = False,
     body: BodyOption = None,
     max_memory: MaxMemoryOption = None,
+    workers: Annotated[
+        int,
+        typer.Option(
+            help="Sum the fit over the arcs on a Dask LocalCluster of N worker processes, "
+            "which hold the arcs in chunks (0: in-process threads). Same numbers to rounding."
+        ),
+    ] = 0,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(help="Sum the fit over the arcs on the workers of this Dask scheduler."),
+    ] = None,
 ) -> None:
     """Fit a gravity correction to tracking arcs and write the model file.
 
@@ -902,6 +914,9 @@ def fit(
             "--harmonic applies to networks fitted by LM (--model network-best, or --solver lm)"
         )
     _number(folds, "--folds", 2, integer=True)
+    _number(workers, "--workers", 0, integer=True)
+    if workers and scheduler:
+        raise InputError("give --workers or --scheduler, not both (a scheduler has its workers)")
     _number(steps, "--steps", 1, integer=True)
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)
@@ -980,7 +995,11 @@ def fit(
         theta0, resume_state = load_checkpoint(ckpt, expect=identity)
     arcs_path = os.path.abspath(arcs_file)
     try:
-        with _progress() as progress:
+        with contextlib.ExitStack() as cluster, _progress() as progress:
+            if workers or scheduler:
+                from .experiments.runner import dask_client
+
+                estimator.client = cluster.enter_context(dask_client(workers, scheduler))
             total = steps if estimator.solver_name == "adam" else None
             choices = estimator.choices()
             # the cross-validation fits come first and report no iterations: say what runs
@@ -1008,7 +1027,7 @@ def fit(
                     checkpoint=lambda th, st: save_checkpoint(ckpt, th, st, identity),
                     resume=resume_state,
                 )
-    except (KeyboardInterrupt, DiskError) as exc:
+    except (KeyboardInterrupt, DiskError, DistributedError) as exc:
         _fit_stopped(exc, ckpt, output, written=False)
     fitted = estimator.fitted_
     fitted.solver["arcs_file"] = arcs_path
@@ -1134,6 +1153,9 @@ def _fit_stopped(exc: BaseException, ckpt: Path, output: Path, written: bool) ->
     if isinstance(exc, DiskError):  # the disk's error, then what was kept
         kept = kept or "the fit had no checkpoint yet: nothing was saved, run the command again"
         raise DiskError(exc.path, exc.reason, f"{exc.fix}; {kept}") from None
+    if isinstance(exc, DistributedError):  # the cluster's error, then what was kept
+        kept = kept or "the fit had no checkpoint yet: nothing was saved, run the command again"
+        raise DistributedError(f"{exc}; {kept}") from None
     if kept is None:
         text = f"{how} before the first checkpoint; nothing was saved: run the same command again"
     else:

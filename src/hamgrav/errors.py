@@ -47,6 +47,11 @@ class PropagationError(HamgravError, RuntimeError):
     """A trajectory could not be propagated under a model (it diverged or became stiff)."""
 
 
+class DistributedError(HamgravError, RuntimeError):
+    """A cluster could not compute part of a fit (its workers gone, or a chunk of arcs lost
+    more often than the scheduler retries); the fit stops like an interrupted one."""
+
+
 class DiskError(HamgravError, RuntimeError):
     """A file could not be written because of the disk or its limits (full, over quota, a
     file-size limit, an I/O error, read-only), not because of hamgrav or its input.

@@ -412,6 +412,10 @@ class GravityEstimator:
             whose held-out trajectories would have no estimated parameters).
         cv_rule: "one-standard-error" (the simplest candidate within one standard error of
             the lowest held-out cost) or "lowest" (see :mod:`hamgrav.fit.selection`).
+        client: a ``dask.distributed`` Client: the fit's sums over arcs (costs, gradient,
+            normal equations) run on its workers, which hold the arcs in chunks
+            (:mod:`hamgrav.fit.distributed`); the numbers equal an in-process fit's to
+            rounding. None (default): in-process, on this machine's threads.
 
     Learned attributes besides those of the module docstring: ``selection_``, the
     :class:`~hamgrav.fit.selection.Selection` of each hyperparameter chosen by
@@ -448,6 +452,7 @@ class GravityEstimator:
         folds: int = 5,
         cv_group: str = "arc",
         cv_rule: str = "one-standard-error",
+        client=None,
     ):
         self.term = term
         self.hidden = hidden
@@ -476,6 +481,7 @@ class GravityEstimator:
         self.folds = folds
         self.cv_group = cv_group
         self.cv_rule = cv_rule
+        self.client = client
 
     # ----------------------------------------------------------------- decisions, one place
     @property
@@ -900,6 +906,9 @@ class GravityEstimator:
         the Kaula weight at the chosen degree. Returns (the chosen settings, the selections)."""
         choices = self.choices()
         settings = {**self.get_params(), "mapper": map}
+        if self.mapper is not map:
+            # the folds' fits run where the mapper sends them, which cannot hold a Client
+            settings["client"] = None
         if "kaula" in choices:
             settings["kaula"] = None  # the degree is chosen unregularised, then alpha at it
         train = np.arange(arcs.n_arcs) if train is None else np.asarray(train, dtype=int)
@@ -982,14 +991,17 @@ class GravityEstimator:
         return self
 
     def _problem(self, model: Model, arcs: Arcs) -> ArcProblem:
-        return ArcProblem(
-            model,
-            arcs,
-            estimate_trajectory_params=self.estimate_trajectory_params,
-            trajectory_values=self.trajectory_values,
-            whitening=noise_whitening(arcs) if self.weighted else None,
-            regulariser=self.harmonic_penalty(model, arcs),
-        )
+        settings = {
+            "estimate_trajectory_params": self.estimate_trajectory_params,
+            "trajectory_values": self.trajectory_values,
+            "whitening": noise_whitening(arcs) if self.weighted else None,
+            "regulariser": self.harmonic_penalty(model, arcs),
+        }
+        if self.client is not None:
+            from .distributed import DistributedArcProblem
+
+            return DistributedArcProblem(model, arcs, client=self.client, **settings)
+        return ArcProblem(model, arcs, **settings)
 
     def harmonic_penalty(self, model: Model, arcs: Arcs) -> HarmonicPenalty | None:
         """The harmonic penalty of a network fit of ``model`` to ``arcs`` (None without
