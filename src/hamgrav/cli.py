@@ -79,7 +79,6 @@ with _DeferInterrupt():
     import math
     import os
     import warnings
-    from dataclasses import replace
     from pathlib import Path
     from typing import Annotated
 
@@ -774,17 +773,6 @@ def _check_fit_memory(settings: dict, hidden_sizes, arcs, limit) -> None:
     )
 
 
-def _stage_of(solver: dict) -> dict:
-    """The stage record of a fit from its model file's solver entry."""
-    keys = ("n_arcs", "n_validation", "solver", "outcome", "iterations", "cost", "wall_s")
-    diagnostics = solver.get("diagnostics") or {}
-    return (
-        {k: solver.get(k) for k in keys}
-        | {k: diagnostics.get(k) for k in ("relative_cost", "checked_on")}
-        | {"arcs_file": solver.get("arcs_file")}
-    )
-
-
 @_command(app)
 def fit(
     arcs_file: Annotated[Path, typer.Argument(metavar="ARCS", help="Arcs file (HDF5).")],
@@ -958,42 +946,17 @@ def fit(
         body=body_obj,
         folds=folds,
     )
-    theta0, resume_state, stages, init_digest = None, None, [], None
-    if init is not None and "degree" in estimator.choices():
-        raise InputError("--init continues a model of one degree: give --model sh:L, not sh:auto")
+    theta0, resume_state, previous = None, None, None
     if init is not None:
-        structure = estimator.build_model(arcs)[0].key()
         try:
-            previous = load_model(init, expect_body=arcs.body_name, expect_structure=structure)
+            previous = load_model(init)
+            estimator.check_continuation(previous, arcs)
         except HamgravError as exc:  # name the option: the model being continued
             raise type(exc)(f"--init: {exc}") from None
-        if not _same_origin(previous.body_origin_m, arcs.body_origin_m):
-            raise InputError(
-                f"--init {init} was fitted in a frame with origin {previous.body_origin_m} m, "
-                f"the arcs {arcs_file} are in one with origin {arcs.body_origin_m} m; "
-                "continue a model of the same campaign"
-            )
-        theta0 = previous.params
-        init_digest = _digest(previous.params)
-        stages = previous.stages or [{"stage": 0, **_stage_of(previous.solver)}]
     run_solver = (estimator.warm_solver if init is not None else None) or estimator.make_solver()
-    identity = {
-        "arcs_sha256": arcs.digest(),
-        "model": model,
-        "hidden": list(hidden_sizes) if term == "network" else None,
-        "prior": prior,
-        "weighted": weighted,
-        "kaula": kaula_value,
-        "harmonic": harmonic_value,
-        "folds": folds,
-        "seed": seed,
-        "init_params_sha256": init_digest,
-        "solver": run_solver.name,
-        "solver_settings": run_solver.describe(),
-    }
+    identity = estimator.checkpoint_identity(arcs, run_solver, init=previous)
     if resume:
         theta0, resume_state = load_checkpoint(ckpt, expect=identity)
-    arcs_path = os.path.abspath(arcs_file)
     try:
         with contextlib.ExitStack() as cluster, _progress() as progress:
             if workers or scheduler:
@@ -1019,22 +982,19 @@ def fit(
             with warnings.catch_warnings():
                 # said below, after the fit's summary, in the command's words
                 warnings.filterwarnings("ignore", message="the fit looks overfit")
-                estimator.fit(
-                    arcs,
-                    init=theta0,
-                    warm=init is not None,
-                    callback=on_iteration,
-                    checkpoint=lambda th, st: save_checkpoint(ckpt, th, st, identity),
-                    resume=resume_state,
-                )
+                how = {
+                    "init": theta0,
+                    "callback": on_iteration,
+                    "checkpoint": lambda th, st: save_checkpoint(ckpt, th, st, identity),
+                    "resume": resume_state,
+                }
+                if previous is not None:
+                    estimator.continue_fit(previous, arcs, **how)
+                else:
+                    estimator.fit(arcs, **how)
     except (KeyboardInterrupt, DiskError, DistributedError) as exc:
         _fit_stopped(exc, ckpt, output, written=False)
-    fitted = estimator.fitted_
-    fitted.solver["arcs_file"] = arcs_path
-    fitted = replace(fitted, training={**fitted.training, "arcs_file": arcs_path})
-    if init is not None:
-        this = {"stage": len(stages), **_stage_of(fitted.solver), "warm_started": True}
-        fitted = replace(fitted, stages=[*stages, this])
+    fitted = estimator.fitted_.with_arcs_file(arcs_file)
     before = _file_id(output)
     try:
         save_model(fitted, output)
@@ -1164,34 +1124,6 @@ def _fit_stopped(exc: BaseException, ckpt: Path, output: Path, written: bool) ->
     raise typer.Exit(code=status) from None
 
 
-def _check_body_model(arcs, fitted, source, model: str, fix: str) -> None:
-    """Refuse arcs (read from ``source``) whose GM or spin period differs from the model's
-    (named ``model`` in the message): they are of another body model, so the model's
-    canonical units do not fit them."""
-    for name, unit in (("gm_m3_s2", "m^3/s^2"), ("spin_period_s", "s")):
-        if not math.isclose(getattr(arcs, name), getattr(fitted, name), rel_tol=1e-12):
-            raise InputError(
-                f"arcs {source} have {name} {getattr(arcs, name)!r} {unit}, {model} "
-                f"{getattr(fitted, name)!r} {unit} (another body model); {fix}"
-            )
-
-
-def _same_origin(a, b) -> bool:
-    """Whether two frame origins [m] are the same frame: within a micrometre (truths of one
-    body drawn with other seeds differ by round-off in their centre of mass; their own
-    digests tell them apart)."""
-    return math.dist(a, b) <= 1e-6
-
-
-def _digest(values) -> str:
-    """SHA-256 (hex) of a parameter vector's float64 bytes."""
-    import hashlib
-
-    import numpy as np
-
-    return hashlib.sha256(np.ascontiguousarray(values, dtype=np.float64).tobytes()).hexdigest()
-
-
 def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
     """The arcs whose truth ``fitted`` is compared with: ``--arcs`` or the file recorded at
     the fit, refused unless it holds the truth (and frame) the model was fitted against."""
@@ -1212,19 +1144,9 @@ def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
             "campaign's arcs with --arcs ARCS"
         )
     arcs = load_arcs(source)
-    if arcs.body_name != fitted.body_name:
-        raise InputError(
-            f"arcs {source} are of body {arcs.body_name!r}, model {model_file} of "
-            f"{fitted.body_name!r}; pass the arcs of this model's campaign with --arcs"
-        )
-    fix = "pass the arcs of this model's campaign with --arcs"
-    _check_body_model(arcs, fitted, source, f"model {model_file}", fix)
-    if not _same_origin(arcs.body_origin_m, fitted.body_origin_m):
-        raise InputError(
-            f"arcs {source} are in a frame with origin {arcs.body_origin_m} m, model "
-            f"{model_file} in one with origin {fitted.body_origin_m} m (another campaign); "
-            "pass the arcs of this model's campaign with --arcs"
-        )
+    fitted.check_arcs(
+        arcs, source, f"model {model_file}", "pass the arcs of this model's campaign with --arcs"
+    )
     truth = training.get("truth_sha256")
     if "truth_sha256" not in training:
         warnings.warn(
@@ -1630,13 +1552,8 @@ def _formal_covariance(fitted, arcs_file: Path | None):
     ):
         return None, "no formal errors: the fit's arcs file is not there (pass --arcs ARCS)"
     arcs = load_arcs(source)
-    if arcs.body_name != fitted.body_name:
-        raise InputError(
-            f"--arcs: arcs of body {arcs.body_name!r}, the model is of {fitted.body_name!r}"
-        )
-    _check_body_model(
+    fitted.check_arcs(
         arcs,
-        fitted,
         source,
         "the model",
         "pass the model's arcs with --arcs, or export without formal errors (--no-errors)",

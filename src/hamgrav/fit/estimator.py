@@ -21,6 +21,7 @@ chosen value; the held-out validation arcs play no part in the choice.
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import math
 import time
@@ -606,6 +607,68 @@ class GravityEstimator:
         if fraction <= 0:
             return None, None
         return validation_split(arcs.n_arcs, fraction, self.seed)
+
+    def continue_fit(self, previous: FittedModel, arcs: Arcs, **fit_kwargs) -> GravityEstimator:
+        """A continual stage: fit ``arcs`` (all the arcs so far) warm-started from
+        ``previous`` (:meth:`check_continuation`), and record the stage in
+        ``fitted_.stages`` after ``previous``'s (a model fitted in one go counts as stage 0).
+        ``fit_kwargs`` as :meth:`fit` (``init``: a resumed checkpoint's parameters instead of
+        ``previous``'s)."""
+        self.check_continuation(previous, arcs)
+        init = fit_kwargs.pop("init", None)
+        self.fit(arcs, init=previous.params if init is None else init, warm=True, **fit_kwargs)
+        stages = previous.stages or [{"stage": 0, **previous.stage_record()}]
+        this = {"stage": len(stages), **self.fitted_.stage_record(), "warm_started": True}
+        self.fitted_ = replace(self.fitted_, stages=[*stages, this])
+        return self
+
+    def check_continuation(self, previous: FittedModel, arcs: Arcs) -> None:
+        """Refuse to continue ``previous`` on ``arcs`` unless it is a model of this
+        estimator's structure, of one degree (not a choice), for the arcs' body and frame."""
+        if "degree" in self.choices():
+            raise InputError(
+                "a continued fit keeps its model's degree: give the degree, not a choice (sh:auto)"
+            )
+        structure = self.build_model(arcs)[0].key()
+        if previous.model.key() != structure:
+            raise InputError(
+                f"the model to continue has structure {previous.model.key()!r}, this fit "
+                f"{structure!r}; continue a model with the same settings"
+            )
+        previous.check_arcs(
+            arcs, "to fit", "the model to continue", "continue a model of the same campaign"
+        )
+
+    def checkpoint_identity(
+        self, arcs: Arcs, solver: Solver, init: FittedModel | None = None
+    ) -> dict:
+        """What identifies a fit for its checkpoint (plain data): the arcs' digest, this
+        estimator's plain-data hyperparameters (terms and solvers by their descriptions;
+        the body, mappers, clients and metrics left out: they do not change the numbers or
+        are checked elsewhere), the ``solver`` that runs and the parameters a continued fit
+        starts from. A checkpoint written under another identity is not resumed."""
+        skip = {"body", "mapper", "client", "kaula_metric", "trajectory_values"}
+        settings = {}
+        for name, value in self.get_params().items():
+            if name in skip:
+                continue
+            if isinstance(value, Solver):
+                value = value.describe()
+            elif isinstance(value, GravityTerm):
+                value = value.describe()
+            elif isinstance(value, tuple | list):
+                value = [v.describe() if isinstance(v, GravityTerm) else v for v in value]
+            settings[name] = value
+        if self.trajectory_values is not None:
+            values = np.ascontiguousarray(self.trajectory_values, np.float64)
+            settings["trajectory_values_sha256"] = hashlib.sha256(values.tobytes()).hexdigest()
+        return {
+            "arcs_sha256": arcs.digest(),
+            "settings": settings,
+            "init_params_sha256": None if init is None else init.params_sha256(),
+            "solver": solver.name,
+            "solver_settings": solver.describe(),
+        }
 
     def get_params(self) -> dict:
         """The hyperparameters as given (the keyword arguments of ``__init__``)."""

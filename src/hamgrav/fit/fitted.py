@@ -3,7 +3,10 @@ field at points in metres."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import hashlib
+import math
+import os
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -12,7 +15,10 @@ from ..core.model import Model, evaluate_field
 from ..errors import InputError
 from ..units import CanonicalUnits
 
-__all__ = ["FittedModel", "FIELD_PARTS"]
+__all__ = ["FittedModel", "FIELD_PARTS", "FRAME_TOLERANCE_M"]
+
+#: Frame origins [m] closer than this are the same frame (see :meth:`FittedModel.same_frame`).
+FRAME_TOLERANCE_M = 1e-6
 
 #: The parts of a fitted field that :meth:`FittedModel.potential` and
 #: :meth:`FittedModel.acceleration` evaluate: "total" = "central" + "known" + "correction"
@@ -69,6 +75,64 @@ class FittedModel:
     def units(self) -> CanonicalUnits:
         """The canonical units of the fit (from ``gm_m3_s2`` and ``spin_period_s``)."""
         return CanonicalUnits(self.gm_m3_s2, self.spin_period_s)
+
+    # ------------------------------------------------------------ belonging together
+    def same_frame(self, origin_m) -> bool:
+        """Whether ``origin_m`` [m, mesh frame] is this model's frame origin: within a
+        micrometre (truths of one body drawn with other seeds differ by round-off in their
+        centre of mass; their own digests tell them apart)."""
+        return math.dist(tuple(origin_m), tuple(self.body_origin_m)) <= FRAME_TOLERANCE_M
+
+    def check_arcs(self, arcs, source, name: str, fix: str) -> None:
+        """Refuse ``arcs`` (read from ``source``) that do not belong with this model (called
+        ``name`` in the message): another body, another body model (GM, spin period: the
+        canonical units would not fit) or another frame origin; ``fix`` ends the message."""
+        if arcs.body_name != self.body_name:
+            raise InputError(
+                f"arcs {source} are of body {arcs.body_name!r}, {name} of {self.body_name!r}; {fix}"
+            )
+        for what, unit in (("gm_m3_s2", "m^3/s^2"), ("spin_period_s", "s")):
+            if not math.isclose(getattr(arcs, what), getattr(self, what), rel_tol=1e-12):
+                raise InputError(
+                    f"arcs {source} have {what} {getattr(arcs, what)!r} {unit}, {name} "
+                    f"{getattr(self, what)!r} {unit} (another body model); {fix}"
+                )
+        if not self.same_frame(arcs.body_origin_m):
+            raise InputError(
+                f"arcs {source} are in a frame with origin {arcs.body_origin_m} m, {name} in "
+                f"one with origin {self.body_origin_m} m (another campaign); {fix}"
+            )
+
+    def params_sha256(self) -> str:
+        """SHA-256 (hex) of the parameter vector's float64 bytes (what a continued fit
+        started from)."""
+        return hashlib.sha256(np.ascontiguousarray(self.params, np.float64).tobytes()).hexdigest()
+
+    def stage_record(self) -> dict:
+        """This fit as a stage of a continual fit (plain data): arcs, validation arcs, solver,
+        outcome, iterations, cost, wall time, held-out cost relative to no correction and
+        where it was checked, and the arcs file."""
+        keys = ("n_arcs", "n_validation", "solver", "outcome", "iterations", "cost", "wall_s")
+        diagnostics = self.solver.get("diagnostics") or {}
+        return (
+            {k: self.solver.get(k) for k in keys}
+            | {k: diagnostics.get(k) for k in ("relative_cost", "checked_on")}
+            | {"arcs_file": self.solver.get("arcs_file")}
+        )
+
+    def with_arcs_file(self, path) -> FittedModel:
+        """This model recording ``path`` (absolute) as the file of the arcs it was fitted to,
+        in its solver and training records and in its last stage."""
+        path = os.path.abspath(path)
+        stages = [dict(stage) for stage in self.stages]
+        if stages:
+            stages[-1]["arcs_file"] = path
+        return replace(
+            self,
+            solver={**self.solver, "arcs_file": path},
+            training={**self.training, "arcs_file": path},
+            stages=stages,
+        )
 
     def potential(self, points_m, which: str = "total") -> np.ndarray:
         """Gravitational potential V [m^2/s^2] at ``points_m`` [m], shape (n, 3) or (3,);
