@@ -1784,6 +1784,24 @@ def experiment_readme(
     console.print(f"wrote {path}")
 
 
+@_command(experiment_app, "merge")
+def experiment_merge(
+    folders: Annotated[
+        list[Path], typer.Argument(help="Results folders of one experiment and config.")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Folder to write.")],
+) -> None:
+    """Merge runs of one experiment and config on other seeds into one results folder (as
+    one run of all their seeds: results.json, README and the figures)."""
+    from .experiments.runner import merge_reports
+
+    if output.exists() and not output.is_dir():
+        raise InputError(f"-o {output} exists and is not a folder; give a folder path")
+    check_writable_folder(output, "-o")
+    path = merge_reports(folders, output)
+    console.print(f"wrote {path}")
+
+
 def _register_experiments() -> None:
     from .experiments.runner import experiment_names, get_experiment
 

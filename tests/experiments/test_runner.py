@@ -199,3 +199,53 @@ def test_readme_rendered_again_from_results(tmp_path):
     assert (tmp_path / "README.md").read_text() == first
     missing = CliRunner().invoke(app, ["experiment", "readme", str(tmp_path / "none")])
     assert missing.exit_code == 2 and "no results.json" in missing.output
+
+
+def test_runs_on_other_seeds_merge_into_the_run_of_all_seeds(tmp_path):
+    from typer.testing import CliRunner
+
+    from hamgrav.cli import app
+
+    cmd = "hamgrav experiment descent --seed {} --repeat {} -o {}"
+    whole, _ = run_experiment(
+        "descent", TINY, seed=3, repeat=2, output=tmp_path / "all", command=cmd.format(3, 2, "x")
+    )
+    for seed in (3, 4):
+        run_experiment(
+            "descent",
+            TINY,
+            seed=seed,
+            output=tmp_path / f"s{seed}",
+            command=cmd.format(seed, 1, "y"),
+        )
+    runner = CliRunner()
+    folders = [str(tmp_path / "s4"), str(tmp_path / "s3")]  # any order
+    result = runner.invoke(app, ["experiment", "merge", *folders, "-o", str(tmp_path / "m")])
+    assert result.exit_code == 0, result.output
+    merged = json.loads((tmp_path / "m" / "results.json").read_text())
+    assert merged["seeds"] == [3, 4] and merged["command"] == cmd.format(3, 2, tmp_path / "m")
+    a, b = _without_timing(merged["repetitions"]), _without_timing(whole["repetitions"])
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+    assert merged["aggregate"] == whole["aggregate"]
+    readme = (tmp_path / "m" / "README.md").read_text()
+    assert "- seeds 3-3: `" + cmd.format(3, 1, "y") + "`" in readme
+    assert (tmp_path / "m" / "touchdown.png").read_bytes() == (
+        tmp_path / "s3" / "touchdown.png"
+    ).read_bytes()
+    # re-rendered from its results.json alone, the same README
+    result = runner.invoke(app, ["experiment", "readme", str(tmp_path / "m")])
+    assert result.exit_code == 0 and (tmp_path / "m" / "README.md").read_text() == readme
+    # runs that do not make one run are refused in one line, nothing written
+    for bad, says in (
+        ([str(tmp_path / "s3"), str(tmp_path / "all")], "share seeds"),
+        ([str(tmp_path / "s3")], "two or more"),
+    ):
+        result = runner.invoke(app, ["experiment", "merge", *bad, "-o", str(tmp_path / "bad")])
+        assert result.exit_code == 2 and says in result.output, result.output
+        assert not (tmp_path / "bad").exists()
+    other = TINY.updated({"hidden": [5]})
+    run_experiment("descent", other, seed=5, output=tmp_path / "s5", command="c")
+    result = runner.invoke(
+        app, ["experiment", "merge", str(tmp_path / "s4"), str(tmp_path / "s5"), "-o", "bad"]
+    )
+    assert result.exit_code == 2 and "another config" in result.output

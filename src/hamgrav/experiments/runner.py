@@ -45,6 +45,8 @@ __all__ = [
     "run_experiment",
     "check_job_memory",
     "rerender_readme",
+    "merge_reports",
+    "read_report",
     "aggregate",
     "summarise",
     "dask_client",
@@ -428,8 +430,8 @@ def write_report(experiment: Experiment, report: dict, artefacts: dict, folder: 
         write_readme(experiment, report, folder)
 
 
-def rerender_readme(folder: str | Path) -> Path:
-    """Write README.md again from the results.json in ``folder`` (no computation)."""
+def read_report(folder: str | Path) -> dict:
+    """The results.json of ``folder``, checked against the report's schema."""
     import json
 
     folder = Path(folder)
@@ -440,8 +442,88 @@ def rerender_readme(folder: str | Path) -> Path:
         report = json.loads(path.read_text())
     except ValueError as exc:
         raise InputError(f"{path} is not an experiment's results ({exc})") from None
+    validate(report, REPORT, str(path), "restore the file (or run the experiment again)")
+    return report
+
+
+def merge_reports(folders: list[str | Path], output: str | Path) -> Path:
+    """Write into ``output`` one results folder of the repetitions of ``folders``: runs of
+    one experiment with the same config (and hamgrav version) on other seeds, e.g. seeds 0-3
+    and 4-7 run on two days or machines. Every repetition is a pure function of its seed, so
+    the merged report is what one run of all the seeds gives: its repetitions in seed order,
+    the aggregate computed again, the wall times added; its command is that single run's
+    (the first run's with ``--seed`` and ``--repeat`` covering all seeds) and it records the
+    runs it was merged from. The figures (drawn from the first repetition's artefacts, which
+    results.json does not hold) are copied from the folder holding the lowest seed."""
+    import re
+    import shutil
+
+    if len(folders) < 2:
+        raise InputError("give two or more results folders to merge")
+    reports = [read_report(f) for f in folders]
+    first = reports[0]
+    for folder, report in zip(folders[1:], reports[1:], strict=True):
+        for key in ("experiment", "config", "hamgrav_version"):
+            if report.get(key) != first.get(key):
+                raise InputError(
+                    f"{folder} holds a run with another {key} than {folders[0]}; merge runs of "
+                    "one experiment and config only"
+                )
+    seeds = sorted(s for r in reports for s in r["seeds"])
+    if len(set(seeds)) != len(seeds):
+        raise InputError("the folders share seeds; merge runs of other seeds only")
+    if seeds != list(range(seeds[0], seeds[0] + len(seeds))):
+        raise InputError(
+            f"the seeds {seeds} leave gaps; merge runs whose seeds follow on from each other"
+        )
+    experiment = get_experiment(first["experiment"])
+    repetitions = sorted((rep for r in reports for rep in r["repetitions"]), key=_seed_of)
+    lowest = min(range(len(reports)), key=lambda i: min(reports[i]["seeds"]))
+    command = re.sub(r"--seed \S+", f"--seed {seeds[0]}", first["command"])
+    command = re.sub(r"--repeat \S+", f"--repeat {len(seeds)}", command)
+    if "--seed " not in command:
+        command += f" --seed {seeds[0]}"
+    if "--repeat " not in command:
+        command += f" --repeat {len(seeds)}"
+    report = {
+        **first,
+        "command": re.sub(r"-o \S+", f"-o {Path(output)}", command),
+        "seeds": seeds,
+        "dispatch": "; ".join(sorted({r["dispatch"] for r in reports})),
+        "wall_s": round(sum(float(r["wall_s"]) for r in reports), 1),
+        "repetitions": repetitions,
+        "aggregate": experiment.aggregate(repetitions),
+        "figures": reports[lowest].get("figures", []),
+        "merged_from": [
+            {"folder": str(f), "command": r["command"], "seeds": r["seeds"]}
+            for f, r in zip(folders, reports, strict=True)
+        ],
+    }
+    folder = Path(output)
+    lines = render_checked(
+        lambda r: readme_lines(experiment, r, folder), report, "the merged report", "check them"
+    )
+    with written_together():
+        make_folder(folder)
+        write_json(folder / "results.json", report)
+        for name in report["figures"]:
+            source = Path(folders[lowest]) / name
+            if source.is_file() and source.resolve() != (folder / name).resolve():
+                shutil.copyfile(source, folder / name)
+        write_text(folder / "README.md", lines)
+    return folder / "README.md"
+
+
+def _seed_of(repetition: dict) -> int:
+    return int(repetition.get("seed", 0))
+
+
+def rerender_readme(folder: str | Path) -> Path:
+    """Write README.md again from the results.json in ``folder`` (no computation)."""
+    folder = Path(folder)
+    path = folder / "results.json"
+    report = read_report(folder)
     fix = "restore the file (or run the experiment again)"
-    validate(report, REPORT, str(path), fix)
     experiment = get_experiment(report["experiment"])
     # results written before figure names were recorded: the PNG files beside them
     report.setdefault("figures", sorted(p.name for p in folder.glob("*.png")))
@@ -480,6 +562,17 @@ def readme_lines(experiment: Experiment, report: dict, folder: Path) -> list[str
         ),
         "",
     ]
+    if report.get("merged_from"):
+        header += [
+            "Merged (`hamgrav experiment merge`) from runs of the same config on other seeds, "
+            "each repetition a function of its seed alone:",
+            "",
+            *(
+                f"- seeds {run['seeds'][0]}-{run['seeds'][-1]}: `{run['command']}`"
+                for run in report["merged_from"]
+            ),
+            "",
+        ]
     lines = header + experiment.readme(report)
     if figures:
         captions = experiment.figure_captions

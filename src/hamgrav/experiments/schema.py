@@ -69,6 +69,7 @@ REPORT = {
     "repetitions": NonEmpty(dict),
     "aggregate": dict,
     "figures": Optional([str]),
+    "merged_from": Optional(NonEmpty({"folder": str, "command": str, "seeds": NonEmpty(int)})),
 }
 
 _NAMES = {str: "a string", int: "an integer", float: "a number", dict: "an object", list: "a list"}
