@@ -19,8 +19,8 @@ from hamgrav.fit.base import Outcome
 from hamgrav.fit.continual import ContinualFit, fit_continual
 from hamgrav.fit.estimator import GravityEstimator
 from hamgrav.fit.estimator import validation_split as split_validation
-from hamgrav.fit.kaula import scan_kaula
-from hamgrav.fit.lm import LevenbergMarquardt, _solve_spd, kaula_diagonal
+from hamgrav.fit.kaula import KaulaPrior, kaula_diagonal, scan_kaula
+from hamgrav.fit.lm import LevenbergMarquardt, _solve_spd
 
 
 @pytest.fixture(scope="module")
@@ -368,6 +368,9 @@ class _OneParameterProblem:
     def regularise(self, theta, cost, atr, ata):
         return cost, atr, ata
 
+    def prior_diagonal(self):
+        return np.zeros(1)
+
 
 def _patient_fit(validation_cost, patience, problem=None):
     # large initial damping: short steps from 0 towards 1 (theta about 0.09, 0.30, 0.63, ...)
@@ -707,7 +710,12 @@ def test_lm_with_a_kaula_weight_minimises_the_regularised_cost(sh_world):
     def gradient(c):
         return problem.normal_equations(c)[1] + k * c
 
-    result = LevenbergMarquardt(kaula_alpha=alpha, rtol=1e-12, max_iter=20).solve(problem, c_true)
+    regularised = problem.with_regulariser(KaulaPrior(model, alpha))
+    np.testing.assert_array_equal(regularised.prior_diagonal(), k)
+    assert regularised.objective(c_true) == pytest.approx(
+        problem.cost(c_true) + 0.5 * c_true @ (k * c_true), rel=1e-14
+    )
+    result = LevenbergMarquardt(rtol=1e-12, max_iter=20).solve(regularised, c_true)
     assert result.outcome.value == "converged" and result.best_iteration > 0
     c = result.params
     assert np.linalg.norm(gradient(c)) < 1e-8 * np.linalg.norm(gradient(c_true))
@@ -813,3 +821,21 @@ def test_each_stage_holds_out_its_own_seeded_split_of_its_arriving_arcs(
         _, val = split_validation(len(new), 0.4, 3 + k)
         held_out.extend(new[val])
         assert sorted(record.validation) == sorted(held_out)
+
+
+def test_kaula_prior_applies_to_sh_only(small_arcs, synthetic_truth):
+    from hamgrav.errors import InputError
+
+    network = GravityEstimator("network", hidden=(4,), body=synthetic_truth.body)
+    model, _ = network.build_model(small_arcs)
+    with pytest.raises(InputError, match="Kaula's rule applies to spherical harmonics"):
+        KaulaPrior(model, 1e-6)
+    sh = GravityEstimator("sh", degree=2, kaula=1e-6, body=synthetic_truth.body)
+    model, _ = sh.build_model(small_arcs)
+    with pytest.raises(InputError, match="alpha must be >= 0"):
+        KaulaPrior(model, -1.0)
+    # the estimator adds the term's natural regulariser at its weight, and records it
+    prior = sh.regulariser(model, small_arcs)
+    assert isinstance(prior, KaulaPrior) and prior.alpha == 1e-6
+    assert GravityEstimator("sh", degree=2, kaula=0.0).regulariser(model, small_arcs) is None
+    assert sh.fit(small_arcs).fitted_.solver["kaula_alpha"] == 1e-6

@@ -15,16 +15,17 @@ A are whitened: r -> W r, A -> W A (the weighted fit, W from
 r and A.
 
 Solvers use an :class:`ArcProblem` only through ``cost``, ``objective``, ``gradient``,
-``normal_equations`` and ``arc_normals`` (the arcs' sums as an :class:`ArcNormals`, which a later
-problem holding the same arcs, e.g. the next stage of a continual fit, adds to instead of
-recomputing). An optional ``regulariser`` (residual rows on the learnable parameters,
-e.g. :class:`hamgrav.fit.harmonic.HarmonicPenalty`) is part of the training objective:
-``objective`` and ``normal_equations`` include it, ``cost`` (validation, diagnostics) never
-does.
+``normal_equations``, ``regularise``, ``prior_diagonal``, ``with_prior`` and ``arc_normals``
+(the arcs' sums as an :class:`ArcNormals`, which a later problem holding the same arcs, e.g.
+the next stage of a continual fit, adds to instead of recomputing). An optional
+``regulariser`` (a :class:`Regulariser` on the learnable parameters: the network's harmonic
+penalty, Kaula's rule on SH, the term's natural one) is part of the training objective:
+``objective`` includes it, ``cost`` (validation, diagnostics) never does.
 """
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 from dataclasses import dataclass
@@ -36,7 +37,38 @@ from .arcs import Arcs
 from .model import DEFAULT_FIT_TOLERANCE, DEFAULT_SENSITIVITY_TOLERANCE, Model
 from .propagation import propagate_batch
 
-__all__ = ["ArcNormals", "ArcProblem", "Prediction"]
+__all__ = ["ArcNormals", "ArcProblem", "Prediction", "Regulariser"]
+
+
+class Regulariser:
+    """A term of a fit's training objective on the learnable parameters p (the first
+    ``n_learn`` of theta), added by :class:`ArcProblem` to the arcs' least squares and never
+    to their cost (validation, diagnostics). It comes in one of two shapes:
+
+    - residual rows, :meth:`terms` -> (rows (k,), their Jacobian (k, n_learn)): 0.5
+      rows.rows, whose Gauss-Newton normals join the arcs' (and with them the damping scale
+      diag(A^T A) of Levenberg-Marquardt): a penalty measured like data (the network's
+      harmonic penalty, :class:`hamgrav.fit.harmonic.HarmonicPenalty`);
+    - a fixed quadratic prior 0.5 p.(d * p) on the parameters' size, :meth:`diagonal` -> d
+      (n_learn,): kept out of the damping scale, so that the damping follows the data alone
+      (Kaula's rule on SH coefficients, :class:`hamgrav.fit.kaula.KaulaPrior`).
+    """
+
+    def terms(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Residual rows and their Jacobian at ``params``; None for a diagonal prior."""
+        return None
+
+    def diagonal(self) -> np.ndarray | None:
+        """d of the quadratic prior 0.5 p.(d * p); None for residual rows."""
+        return None
+
+    def describe(self) -> dict:
+        """Plain-data summary for fit records."""
+        return {}
+
+    def record(self) -> dict:
+        """The entries a fit's solver record gains from this regulariser (plain data)."""
+        return {}
 
 
 @dataclass(frozen=True)
@@ -84,8 +116,7 @@ class ArcProblem:
             (:meth:`design`, the normal equations).
         threads: worker threads (default: the number of CPUs).
         max_steps: Taylor steps allowed per batch of arcs before a trial is declared stiff.
-        regulariser: optional object with ``terms(theta) -> (rows (k,), jacobian (k,
-            n_learn))`` whose 0.5 rows.rows is added to the training objective.
+        regulariser: optional :class:`Regulariser` added to the training objective.
     """
 
     def __init__(
@@ -248,12 +279,36 @@ class ArcProblem:
         return r.reshape(-1), a.reshape(-1, self.n_params)
 
     def objective(self, theta, arc_indices=None) -> float:
-        """The training objective: :meth:`cost` plus the regulariser's 0.5 rows.rows."""
-        cost = self.cost(theta, arc_indices)
+        """The training objective: :meth:`cost` plus the regulariser's value (0.5 rows.rows,
+        or the prior 0.5 theta.(d * theta))."""
+        return self.with_prior(theta, self.cost(theta, arc_indices))
+
+    def with_prior(self, theta, cost: float) -> float:
+        """``cost`` plus the regulariser's value at ``theta`` (see :meth:`objective`)."""
         if self.regulariser is None:
             return cost
-        rows, _ = self.regulariser.terms(np.asarray(theta, float)[: self.model.n_learn])
+        theta = np.asarray(theta, float)
+        if self.regulariser.diagonal() is not None:
+            prior = self.prior_diagonal()
+            return cost + 0.5 * float(theta @ (prior * theta))
+        rows, _ = self.regulariser.terms(theta[: self.model.n_learn])
         return cost + 0.5 * float(rows @ rows)
+
+    def prior_diagonal(self) -> np.ndarray:
+        """d (n_params,) of the regulariser's quadratic prior 0.5 theta.(d * theta), zero beyond
+        the learnable parameters; all zero without one (see :class:`Regulariser`)."""
+        d = np.zeros(self.n_params)
+        diagonal = None if self.regulariser is None else self.regulariser.diagonal()
+        if diagonal is not None:
+            d[: len(diagonal)] = diagonal
+        return d
+
+    def with_regulariser(self, regulariser: Regulariser | None) -> ArcProblem:
+        """This problem (the same arcs, model and settings, sharing their caches) with another
+        regulariser."""
+        other = copy.copy(self)
+        other.regulariser = regulariser
+        return other
 
     def normal_equations(self, theta, arc_indices=None, chunk: int = 64, *, regularised=True):
         """(J, A^T r, A^T A), accumulated over chunks of arcs without materialising A; with
@@ -324,8 +379,9 @@ class ArcProblem:
         """The objective's (J, A^T r, A^T A) from the arcs' own (``normal_equations(...,
         regularised=False)``): the regulariser's rows appended; new arrays, the given ones
         are left as they are (the arcs' A^T A is what the fit diagnostics need). Without a
-        regulariser the same arrays are returned."""
-        if self.regulariser is None:
+        regulariser of rows the same arrays are returned: a diagonal prior stays apart
+        (:meth:`prior_diagonal`), out of the damping scale of LM, which adds it itself."""
+        if self.regulariser is None or self.regulariser.diagonal() is not None:
             return cost, atr, ata
         k = self.model.n_learn
         rows, jac = self.regulariser.terms(np.asarray(theta, float)[:k])

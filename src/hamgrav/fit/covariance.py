@@ -81,7 +81,7 @@ from ..errors import InputError, PropagationError
 from ..units import CanonicalUnits
 from .estimator import noise_whitening, require_noise, validation_split
 from .fitted import FittedModel
-from .lm import kaula_diagonal
+from .kaula import kaula_diagonal
 
 __all__ = [
     "RANK_THRESHOLD",

@@ -37,7 +37,7 @@ from ..bodies.evaluation import exterior_points
 from ..bodies.shape_prior import DEFAULT_PRIOR_MASCONS, centred_shape_prior
 from ..core.arcs import Arcs
 from ..core.model import Model, evaluate_field
-from ..core.problem import ArcProblem
+from ..core.problem import ArcProblem, Regulariser
 from ..core.terms import GravityTerm, MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
 from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
@@ -46,7 +46,7 @@ from .base import Outcome, Solver, SolveResult
 from .diagnostics import OVERFIT_FACTOR, constrained_parameters, diagnose
 from .fitted import FittedModel
 from .harmonic import DEFAULT_COLLOCATION_POINTS, HarmonicPenalty
-from .kaula import KAULA_ALPHAS, scan_kaula
+from .kaula import KAULA_ALPHAS, KaulaPrior, scan_kaula
 from .lm import LevenbergMarquardt
 from .selection import GROUPS, RULES, Selection, cross_validate
 
@@ -558,14 +558,11 @@ class GravityEstimator:
 
     def make_solver(self) -> Solver:
         """The solver object this estimator runs."""
-        if isinstance(self.solver, LevenbergMarquardt) and _is_number(self.kaula):
-            return replace(self.solver, kaula_alpha=float(self.kaula))
         if isinstance(self.solver, Solver):
             return self.solver
         name = self.solver_name
         if name == "lm":
-            alpha = self.kaula if _is_number(self.kaula) else 0.0
-            return LevenbergMarquardt(max_iter=self.lm_max_iter, kaula_alpha=float(alpha))
+            return LevenbergMarquardt(max_iter=self.lm_max_iter)
         if name == "adam":
             return Adam(
                 learning_rate=self.learning_rate,
@@ -832,7 +829,7 @@ class GravityEstimator:
                 )
             if not isinstance(solver, LevenbergMarquardt):
                 raise InputError("the Kaula scan needs the LM solver")
-            _, result, kaula_scores = scan_kaula(
+            kaula_chosen, result, kaula_scores = scan_kaula(
                 problem,
                 metric,
                 solver=solver,
@@ -934,10 +931,13 @@ class GravityEstimator:
         if members is not None:
             solver_info["members"] = members
         if problem.regulariser is not None:
-            solver_info["harmonic"] = problem.regulariser.describe()
+            solver_info |= problem.regulariser.record()
+        if isinstance(solver, LevenbergMarquardt):
+            # every LM fit records its Kaula weight (0: none), as model files always have
+            solver_info.setdefault("kaula_alpha", 0.0)
         if kaula_scores is not None:
             solver_info["kaula_scan"] = kaula_scores
-            solver_info["kaula_alpha"] = result.solver["kaula_alpha"]
+            solver_info["kaula_alpha"] = kaula_chosen
         self.fitted_ = FittedModel(
             model=model,
             params=result.params,
@@ -1058,13 +1058,25 @@ class GravityEstimator:
             "estimate_trajectory_params": self.estimate_trajectory_params,
             "trajectory_values": self.trajectory_values,
             "whitening": noise_whitening(arcs) if self.weighted else None,
-            "regulariser": self.harmonic_penalty(model, arcs),
+            "regulariser": self.regulariser(model, arcs),
         }
         if self.client is not None:
             from .distributed import DistributedArcProblem
 
             return DistributedArcProblem(model, arcs, client=self.client, **settings)
         return ArcProblem(model, arcs, **settings)
+
+    def regulariser(self, model: Model, arcs: Arcs) -> Regulariser | None:
+        """The regulariser a fit of ``model`` to ``arcs`` adds to its training objective: the
+        term's natural one (:attr:`~hamgrav.core.terms.GravityTerm.natural_regulariser`) at
+        this estimator's weight: the harmonic penalty of a network (``harmonic``), Kaula's
+        rule on SH (``kaula``, a number > 0); None without a weight (or for a term with
+        neither)."""
+        term = model.learnable
+        natural = None if term is None else term.natural_regulariser
+        if natural == "kaula" and _is_number(self.kaula) and self.kaula > 0:
+            return KaulaPrior(model, float(self.kaula))
+        return self.harmonic_penalty(model, arcs)
 
     def harmonic_penalty(self, model: Model, arcs: Arcs) -> HarmonicPenalty | None:
         """The harmonic penalty of a network fit of ``model`` to ``arcs`` (None without

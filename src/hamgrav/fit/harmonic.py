@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.model import Model, evaluate_laplacian
+from ..core.problem import Regulariser
 from ..errors import InputError
 
 __all__ = ["HarmonicPenalty", "DEFAULT_COLLOCATION_POINTS"]
@@ -24,7 +25,7 @@ __all__ = ["HarmonicPenalty", "DEFAULT_COLLOCATION_POINTS"]
 DEFAULT_COLLOCATION_POINTS = 1500
 
 
-class HarmonicPenalty:
+class HarmonicPenalty(Regulariser):
     """0.5 ``weight`` sum_k ((r_k / R_w)^5 lap N(x_k))^2 for the learnable network of
     ``model`` at ``points`` (k, 3), canonical (R_w: the network's envelope radius);
     ``weight`` is dimensionless. The learnable term is one whose natural regulariser is this
@@ -62,3 +63,7 @@ class HarmonicPenalty:
     def describe(self) -> dict:
         """Plain-data summary for fit records."""
         return {"weight": self.weight, "collocation_points": len(self.points)}
+
+    def record(self) -> dict:
+        """The fit record's "harmonic" entry: :meth:`describe`."""
+        return {"harmonic": self.describe()}

@@ -1,4 +1,4 @@
-"""Levenberg-Marquardt with optional Kaula regularisation (the paper's schedule)."""
+"""Levenberg-Marquardt (the paper's schedule), with the problem's regulariser."""
 
 from __future__ import annotations
 
@@ -10,23 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ..core.problem import ArcProblem
 from ..errors import DatasetError, PropagationError
 from .base import Outcome, Solver, SolveResult
 
-__all__ = ["LevenbergMarquardt", "kaula_diagonal"]
-
-
-def kaula_diagonal(problem: ArcProblem) -> np.ndarray:
-    """K = diag(l^4) on the SH block of the parameters, 0 elsewhere (Kaula's rule: the
-    learnable term's :meth:`~hamgrav.core.terms.GravityTerm.kaula_weights`; all 0 for a term
-    the rule does not apply to)."""
-    k = np.zeros(problem.n_params)
-    term = problem.model.learnable
-    weights = None if term is None else term.kaula_weights()
-    if weights is not None:
-        k[: term.n_params] = weights
-    return k
+__all__ = ["LevenbergMarquardt"]
 
 
 def _solve_spd(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -47,11 +34,14 @@ def _solve_spd(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 class LevenbergMarquardt(Solver):
     """Gauss-Newton with Levenberg-Marquardt damping.
 
-    (A^T A + lambda diag(A^T A) + alpha K) dc = -(A^T r + alpha K c); a step is accepted when
-    the (regularised) cost drops (lambda /= ``lambda_down``, floored at ``lambda_floor``), else
+    (A^T A + lambda diag(A^T A) + D) dc = -(A^T r + D c); a step is accepted when the
+    problem's objective drops (lambda /= ``lambda_down``, floored at ``lambda_floor``), else
     rejected (lambda *= ``lambda_up``). Stops at a relative cost change below ``rtol``, when
-    lambda exceeds ``lambda_ceiling`` or after ``max_iter`` iterations. ``kaula_alpha`` = alpha
-    (0: no regularisation). ``damping_floor`` > 0 floors the Marquardt scaling diag(A^T A) at
+    lambda exceeds ``lambda_ceiling`` or after ``max_iter`` iterations. A regulariser of the
+    problem (:class:`~hamgrav.core.problem.Regulariser`) of residual rows is part of A^T A and
+    A^T r; a quadratic prior 0.5 c.(D c) (Kaula's rule: D = alpha diag(l^4),
+    :class:`~hamgrav.fit.kaula.KaulaPrior`) is D above, out of the damping scale.
+    ``damping_floor`` > 0 floors the Marquardt scaling diag(A^T A) at
     that fraction of its largest entry, so that parameters the data barely see (weights of
     saturated tanh units, diag ~ 1e-50) are damped too. With validation arcs and
     ``patience``, the fit stops after ``patience`` accepted steps in a row that do not lower
@@ -73,7 +63,6 @@ class LevenbergMarquardt(Solver):
     lambda_ceiling: float = 1e12
     rtol: float = 1e-6
     max_iter: int = 50
-    kaula_alpha: float = 0.0
     damping_floor: float = 0.0
     patience: int | None = None
     validation_gate: bool = False
@@ -84,10 +73,7 @@ class LevenbergMarquardt(Solver):
         self, problem, theta, train, validation, callback, checkpoint, resume, known
     ) -> SolveResult:
         start = time.perf_counter()
-        kaula = self.kaula_alpha * kaula_diagonal(problem)
-
-        def reg_cost(c, th):
-            return c + 0.5 * float(th @ (kaula * th))
+        prior = problem.prior_diagonal()
 
         try:
             # the arcs' own sums are kept beside the objective's: the fit diagnostics count the
@@ -97,7 +83,7 @@ class LevenbergMarquardt(Solver):
         except PropagationError as exc:
             raise PropagationError(f"the initial parameters do not propagate: {exc}") from None
         cost, atr, ata = problem.regularise(theta, normals.cost, normals.atr, normals.ata)
-        cost = reg_cost(cost, theta)
+        cost = problem.with_prior(theta, cost) if prior.any() else cost
         initial_cost = cost
         lam = self.lambda0 if resume is None else float(resume["lambda"])
         history = {"cost": [cost], "lambda": [lam], "accepted": [True], "time_s": [0.0]}
@@ -117,11 +103,11 @@ class LevenbergMarquardt(Solver):
             scaling = np.diag(ata)
             if self.damping_floor > 0:
                 scaling = np.maximum(scaling, self.damping_floor * scaling.max())
-            lhs = ata + lam * np.diag(scaling) + np.diag(kaula)
-            step = _solve_spd(lhs, -(atr + kaula * theta))
+            lhs = ata + lam * np.diag(scaling) + np.diag(prior)
+            step = _solve_spd(lhs, -(atr + prior * theta))
             trial = theta + step
             try:
-                trial_cost = reg_cost(problem.objective(trial, train), trial)
+                trial_cost = problem.objective(trial, train)
             except PropagationError:
                 trial_cost = math.inf
             accepted = trial_cost < cost
