@@ -56,7 +56,16 @@ def test_selection_tiny(tmp_path):
     assert errors["network-best-truth"]["r1.05"] == min(e["r1.05"] for e in scanned.values())
     assert errors["network-best-cv"] == scanned[weight["cv_weight"]]
     assert weight["within"] == (weight["cv_over_truth"] <= 1.1)
+    # the weight the 'lowest' rule would keep, from the recorded cross-validation table
+    (table,) = rep["selection"]["network-best-cv"]
+    costs = dict(zip(table["candidates"], table["held_out_cost"], strict=True))
+    assert weight["lowest_weight"] == min(costs, key=costs.get) == table["lowest"]
+    lowest_error = scanned[weight["lowest_weight"]]["r1.05"]
+    assert weight["lowest_over_truth"] == round(
+        lowest_error / errors["network-best-truth"]["r1.05"], 4
+    )
     # the truth scan of alpha can only do as well as or better than no regularisation there
     assert errors["sh3-kaula-truth"]["r1.05"] <= errors["sh3"]["r1.05"] + 1e-9
     readme = (out / "README.md").read_text()
     assert "never worse than no correction" in readme and "| network-best-cv |" in readme
+    assert "the 'lowest' rule on the same folds" in readme

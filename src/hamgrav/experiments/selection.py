@@ -111,6 +111,17 @@ class SelectionExperiment(Experiment):
                 "cv_over_truth": round(cv_err / truth_err, 4),
                 "within": bool(cv_err <= (1 + WITHIN) * truth_err),
             }
+            # the weight of lowest held-out cost (the "lowest" rule), from the same folds:
+            # its scanned fit is the one that rule would keep
+            tables = fits["network-best-cv"].fitted_.solver.get("selection", [])
+            lowest = [t["lowest"] for t in tables if t["name"] == "harmonic"]
+            if lowest and f"network-best-w{lowest[0]:g}" in field_error:
+                low_err = field_error[f"network-best-w{lowest[0]:g}"][shell]
+                network |= {
+                    "lowest_weight": lowest[0],
+                    "lowest_over_truth": round(low_err / truth_err, 4),
+                    "lowest_within": bool(low_err <= (1 + WITHIN) * truth_err),
+                }
             ctx.say(
                 f"network weight: cross-validation {network['cv_weight']}, truth "
                 f"{network['truth_weight']:g}; error ratio {network['cv_over_truth']:.3f}"
@@ -121,6 +132,11 @@ class SelectionExperiment(Experiment):
             "n_arcs": arcs.n_arcs,
             "field_error": field_error,
             "chosen": chosen,
+            "selection": {
+                name: est.fitted_.solver["selection"]
+                for name, est in fits.items()
+                if est.fitted_.solver.get("selection")
+            },
             "network_weight": network,
             "outcomes": {n: e.result_.outcome.value for n, e in fits.items()},
             "wall_s": {n: round(e.result_.wall_s, 1) for n, e in fits.items()},
@@ -183,6 +199,15 @@ def selection_readme(report: dict) -> list[str]:
             f"{ratios[len(ratios) // 2]:.3f}, worst {ratios[-1]:.3f}) | "
             f"{'yes' if hits >= round(7 / 8 * len(weights)) else 'no'} |"
         )
+        lowest = [w for w in weights if "lowest_within" in w]
+        if len(lowest) == len(weights):
+            hits = sum(w["lowest_within"] for w in lowest)
+            ratios = sorted(w["lowest_over_truth"] for w in lowest)
+            lines.append(
+                "| (for comparison: the weight of lowest held-out cost, the 'lowest' rule on "
+                f"the same folds) | {hits} of {len(lowest)} (ratio "
+                f"{ratios[len(ratios) // 2]:.3f}, worst {ratios[-1]:.3f}) | - |"
+            )
     choosing = [row for row, c in first["chosen"].items() if c]
     lines += ["", "## What each draw chose", "", "| seed | " + " | ".join(choosing) + " |"]
     lines.append("|---|" + "---|" * len(choosing))
