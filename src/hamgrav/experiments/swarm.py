@@ -625,7 +625,12 @@ def swarm_readme(report: dict) -> list[str]:
         + (
             ", harmonic penalty weight chosen per fit from "
             + ", ".join(f"{w:g}" for w in cfg["harmonic_scan"])
-            + " by the cost on its held-out arcs"
+            + (
+                f" by {cfg['harmonic_scan_folds']}-fold cross-validation over whole arcs of "
+                "its training arcs"
+                if cfg.get("harmonic_scan_folds")
+                else " by the cost on its held-out arcs"
+            )
             + (
                 " (the strongest within one standard error of the lowest)"
                 if cfg.get("harmonic_scan_rule", "lowest") == "one-standard-error"
