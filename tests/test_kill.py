@@ -200,3 +200,27 @@ def test_a_signal_as_the_model_is_written_says_the_fit_is_complete(
     )
     assert _names(tmp_path) == ["m.h5"]
     load_model(out)
+
+
+def test_a_signal_while_the_progress_display_closes_waits_for_its_line(monkeypatch):
+    """A Ctrl-C that lands as the progress display writes its last line used to cut it, and
+    the command's 'interrupted; ...' report then continued the bar's line."""
+    import io
+
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from hamgrav import cli
+
+    closing = Progress.stop
+
+    def stop(self):
+        os.kill(os.getpid(), signal.SIGINT)  # handled at the next instruction of this thread
+        closing(self)
+
+    monkeypatch.setattr(Progress, "stop", stop)
+    out = io.StringIO()
+    monkeypatch.setattr(cli, "err", Console(file=out))
+    with pytest.raises(KeyboardInterrupt), cli._progress() as bar:
+        bar.add_task("fitting", total=2)
+    assert out.getvalue().endswith("\n") and "fitting" in out.getvalue()

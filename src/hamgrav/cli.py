@@ -245,8 +245,30 @@ def _command(typer_app: typer.Typer, *args, **kwargs):
     return register
 
 
+class _Progress(Progress):
+    """A progress display whose closing line is written whole: a Ctrl-C or SIGTERM that
+    arrives while it closes is held until it has ended its line and raised then, so the
+    command's one-line report of the signal starts a line of its own."""
+
+    def __exit__(self, *exc):
+        held = []
+        previous = {}
+        if threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                handler = signal.getsignal(signum)
+                if callable(handler) or handler is signal.default_int_handler:
+                    previous[signum] = signal.signal(signum, lambda n, f: held.append(n))
+        try:
+            super().__exit__(*exc)
+        finally:
+            for signum, handler in previous.items():
+                signal.signal(signum, handler)
+        if held and exc[0] is None:  # raised as the handler would have, now the line is done
+            signal.raise_signal(held[0])
+
+
 def _progress() -> Progress:
-    return Progress(
+    return _Progress(
         TextColumn("{task.description}"),
         BarColumn(),
         TextColumn("{task.completed}/{task.total}"),
