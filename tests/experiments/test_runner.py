@@ -239,6 +239,7 @@ def test_runs_on_other_seeds_merge_into_the_run_of_all_seeds(tmp_path):
     for bad, says in (
         ([str(tmp_path / "s3"), str(tmp_path / "all")], "share seeds"),
         ([str(tmp_path / "s3")], "two or more"),
+        ([str(tmp_path / "s3"), str(tmp_path / "bad")], "is one of the folders merged"),
     ):
         result = runner.invoke(app, ["experiment", "merge", *bad, "-o", str(tmp_path / "bad")])
         assert result.exit_code == 2 and says in result.output, result.output

@@ -123,3 +123,24 @@ def test_fit_command_on_a_local_cluster(tmp_path, small_arcs):
         result = runner.invoke(app, ["fit", str(arcs), "--model", "sh:2", "-o", str(out), *bad])
         assert result.exit_code == 2 and says in result.output, result.output
         assert not out.exists()
+
+
+def test_a_cluster_left_without_workers_stops_the_call(small_arcs, synthetic_truth, monkeypatch):
+    from hamgrav.errors import DistributedError
+    from hamgrav.fit import distributed
+
+    monkeypatch.setattr(distributed, "_POLL_S", 0.5)
+    monkeypatch.setattr(distributed, "NO_WORKERS_S", 1.0)
+    est = _network(synthetic_truth.body)
+    model, _ = est.build_model(small_arcs)
+    theta = est.initial_params(model, small_arcs)
+    with dask_client(workers=1) as client:
+        remote = DistributedArcProblem(model, small_arcs, client=client, chunks=2)
+        remote.cost(theta)
+        client.cluster.scale(0)
+        deadline = time.monotonic() + 60
+        while client.nthreads():
+            assert time.monotonic() < deadline, "the worker did not go"
+            time.sleep(0.1)
+        with pytest.raises(DistributedError, match="no worker for"):
+            remote.cost(theta)

@@ -838,4 +838,7 @@ def test_kaula_prior_applies_to_sh_only(small_arcs, synthetic_truth):
     prior = sh.regulariser(model, small_arcs)
     assert isinstance(prior, KaulaPrior) and prior.alpha == 1e-6
     assert GravityEstimator("sh", degree=2, kaula=0.0).regulariser(model, small_arcs) is None
+    # Adam's gradient leaves a prior out: it is neither added nor recorded there
+    adam = GravityEstimator("sh", degree=2, kaula=1e-6, solver="adam")
+    assert adam.regulariser(model, small_arcs) is None
     assert sh.fit(small_arcs).fitted_.solver["kaula_alpha"] == 1e-6

@@ -284,6 +284,11 @@ def build_truth(
 
     n_background = n_mascons - (len(extra) if extra is not None else 0)
     usable = int(np.count_nonzero(weights))
+    if usable == 0:
+        raise InputError(
+            f"the {interior} interior of {body.name} leaves no volume samples to build "
+            "mascons from; choose another interior or a smaller void_fraction"
+        )
     if usable < n_background:
         # fewer weighted samples than mascons (a cavity empties a fifth of them): on a grid
         # fine enough for twice the mascons, never fewer mascons than asked without a word

@@ -460,6 +460,8 @@ def merge_reports(folders: list[str | Path], output: str | Path) -> Path:
 
     if len(folders) < 2:
         raise InputError("give two or more results folders to merge")
+    if any(Path(f).resolve() == Path(output).resolve() for f in folders):
+        raise InputError(f"-o {output} is one of the folders merged; give a new folder")
     reports = [read_report(f) for f in folders]
     first = reports[0]
     for folder, report in zip(folders[1:], reports[1:], strict=True):
@@ -479,15 +481,15 @@ def merge_reports(folders: list[str | Path], output: str | Path) -> Path:
     experiment = get_experiment(first["experiment"])
     repetitions = sorted((rep for r in reports for rep in r["repetitions"]), key=_seed_of)
     lowest = min(range(len(reports)), key=lambda i: min(reports[i]["seeds"]))
-    command = re.sub(r"--seed \S+", f"--seed {seeds[0]}", first["command"])
-    command = re.sub(r"--repeat \S+", f"--repeat {len(seeds)}", command)
+    command = re.sub(r"--seed \S+", lambda _: f"--seed {seeds[0]}", first["command"])
+    command = re.sub(r"--repeat \S+", lambda _: f"--repeat {len(seeds)}", command)
     if "--seed " not in command:
         command += f" --seed {seeds[0]}"
     if "--repeat " not in command:
         command += f" --repeat {len(seeds)}"
     report = {
         **first,
-        "command": re.sub(r"-o \S+", f"-o {Path(output)}", command),
+        "command": re.sub(r"-o \S+", lambda _: f"-o {Path(output)}", command),
         "seeds": seeds,
         "dispatch": "; ".join(sorted({r["dispatch"] for r in reports})),
         "wall_s": round(sum(float(r["wall_s"]) for r in reports), 1),

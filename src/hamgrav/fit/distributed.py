@@ -39,12 +39,16 @@ from ..core.model import Model
 from ..core.problem import ArcProblem
 from ..errors import DistributedError, HamgravError, PropagationError
 
-__all__ = ["DistributedArcProblem", "DistributedError", "default_chunks"]
+__all__ = ["DistributedArcProblem", "DistributedError", "NO_WORKERS_S", "default_chunks"]
 
 #: Chunk problems a worker keeps (the oldest go first): the chunks of a few fits at once
 #: (the members of an ensemble, cross-validation folds).
 _KEPT_PROBLEMS = 64
 _PROBLEMS: OrderedDict[str, ArcProblem] = OrderedDict()
+#: A call gives up when the cluster has had no worker for this long [s].
+NO_WORKERS_S = 120.0
+#: How often a waiting call checks that the cluster still has workers [s].
+_POLL_S = 10.0
 
 
 def default_chunks(client, n_arcs: int) -> int:
@@ -152,11 +156,24 @@ class DistributedArcProblem(ArcProblem):
             calls.append((where, future))
         return calls
 
-    @staticmethod
-    def _result(future):
-        """A chunk's result; the cluster's failures as one :class:`DistributedError`."""
+    def _result(self, future):
+        """A chunk's result; the cluster's failures as one :class:`DistributedError`, and a
+        cluster left with no worker for :data:`NO_WORKERS_S` seconds too (a scheduler waits
+        for workers forever by default)."""
+        from dask.distributed import TimeoutError as DaskTimeout
+
         try:
-            return future.result()
+            idle = 0.0
+            while True:
+                try:
+                    return future.result(timeout=_POLL_S)
+                except (DaskTimeout, TimeoutError):
+                    idle = idle + _POLL_S if not self.client.nthreads() else 0.0
+                    if idle >= NO_WORKERS_S:
+                        raise DistributedError(
+                            f"the cluster has had no worker for {idle:.0f} s; start workers "
+                            "(or use --workers N), then resume the fit"
+                        ) from None
         except (PropagationError, HamgravError, ValueError):
             raise
         except Exception as exc:  # KilledWorker, CancelledError, lost connections...

@@ -613,6 +613,7 @@ class GravityEstimator:
         ``previous``'s)."""
         self.check_continuation(previous, arcs)
         init = fit_kwargs.pop("init", None)
+        fit_kwargs.pop("warm", None)  # a continued fit is a warm start
         self.fit(arcs, init=previous.params if init is None else init, warm=True, **fit_kwargs)
         stages = previous.stages or [{"stage": 0, **previous.stage_record()}]
         this = {"stage": len(stages), **self.fitted_.stage_record(), "warm_started": True}
@@ -996,6 +997,7 @@ class GravityEstimator:
             settings[name] = selection.chosen
             selections.append(selection)
         settings["mapper"] = self.mapper
+        settings["client"] = self.client  # the chosen fit runs where this estimator does
         return settings, selections
 
     def _fit_chosen(self, arcs: Arcs, *, init, validation, **fit_kwargs) -> GravityEstimator:
@@ -1074,7 +1076,10 @@ class GravityEstimator:
         neither)."""
         term = model.learnable
         natural = None if term is None else term.natural_regulariser
-        if natural == "kaula" and _is_number(self.kaula) and self.kaula > 0:
+        # Kaula's rule is a term of LM's normal equations (Adam's gradient leaves it out, so
+        # an Adam fit neither applies nor records it)
+        lm = self.solver_name == "lm"
+        if natural == "kaula" and lm and _is_number(self.kaula) and self.kaula > 0:
             return KaulaPrior(model, float(self.kaula))
         return self.harmonic_penalty(model, arcs)
 
