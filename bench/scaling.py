@@ -18,6 +18,7 @@ network is network-best's member, [24, 24] tanh units (721 parameters).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -47,7 +48,7 @@ def one(arcs_file: str, n_arcs: int, workers: int, repeat: int) -> dict:
     model, _ = est.build_model(arcs)
     theta = est.initial_params(model, arcs)
     out = {"arcs": n_arcs, "parameters": int(theta.size), "workers": workers}
-    with dask_client(workers) if workers else _nothing() as client:
+    with dask_client(workers) if workers else contextlib.nullcontext() as client:
         if client is None:
             problem = ArcProblem(model, arcs)
         else:
@@ -67,14 +68,6 @@ def one(arcs_file: str, n_arcs: int, workers: int, repeat: int) -> dict:
             peaks = client.run(_peak_mb)
             out["worker_peak_mb"] = max(peaks.values())
     return out
-
-
-class _nothing:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False
 
 
 def main() -> None:

@@ -255,8 +255,7 @@ class _Progress(Progress):
         previous = {}
         if threading.current_thread() is threading.main_thread():
             for signum in (signal.SIGINT, signal.SIGTERM):
-                handler = signal.getsignal(signum)
-                if callable(handler) or handler is signal.default_int_handler:
+                if callable(signal.getsignal(signum)):  # not ignored, not the default action
                     previous[signum] = signal.signal(signum, lambda n, f: held.append(n))
         try:
             super().__exit__(*exc)
@@ -775,6 +774,7 @@ def _check_fit_memory(settings: dict, hidden_sizes, arcs, limit) -> None:
     member's parameters: the members of network-best are fitted one at a time)."""
     import numpy as np
 
+    from .core.terms import SphericalHarmonics
     from .fit.estimator import AUTO_DEGREES
     from .sizing import check_memory, fit_bytes, network_parameters
 
@@ -784,7 +784,8 @@ def _check_fit_memory(settings: dict, hidden_sizes, arcs, limit) -> None:
         # sh:auto: its most flexible candidate is the largest fit it makes
         degree = settings["degree"]
         largest = max(AUTO_DEGREES if degree == "auto" else np.atleast_1d(degree))
-        n_params, fix = (int(largest) + 1) ** 2 - 4, "lower the degree of --model sh:L"
+        n_params = SphericalHarmonics(int(largest), 1.0).n_params
+        fix = "lower the degree of --model sh:L"
     else:
         return
     check_memory(

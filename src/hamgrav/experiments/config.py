@@ -204,6 +204,7 @@ def largest_parameters(config: ExperimentConfig) -> int:
     """Parameters of the largest fit ``config`` asks for: one network of its ``hidden`` layers
     (members are fitted one at a time) or the SH expansion of its highest degree among
     :data:`SH_DEGREE_OPTIONS`, (L + 1)^2 - 4 coefficients; 0 when it has neither."""
+    from ..core.terms import SphericalHarmonics
     from ..sizing import network_parameters
 
     counts = [0]
@@ -214,5 +215,5 @@ def largest_parameters(config: ExperimentConfig) -> int:
         if degrees is None:
             continue
         for degree in degrees if isinstance(degrees, tuple) else (degrees,):
-            counts.append((int(degree) + 1) ** 2 - 4)
+            counts.append(SphericalHarmonics(int(degree), 1.0).n_params)
     return max(counts)

@@ -37,6 +37,7 @@ from ..bodies.shapes import read_shape, write_icq
 from ..core.fields import relative_field_error
 from ..core.mascons import mascon_potential
 from ..core.shexpansion import sh_potential
+from ..core.terms import SphericalHarmonics
 from ..errors import InputError
 from ..fit.estimator import GravityEstimator, body_for_model, preset
 from ..io.shformats import sh_export, write_icgem
@@ -92,7 +93,8 @@ class OwnBodyConfig(ExperimentConfig):
         from ..sizing import fit_bytes, network_parameters
 
         hidden = GravityEstimator().hidden  # network-best's network: the estimator's default
-        n_params = max((self.max_degree + 1) ** 2 - 4, network_parameters(hidden))
+        sh = SphericalHarmonics(self.max_degree, 1.0).n_params
+        n_params = max(sh, network_parameters(hidden))
         samples = TrackingConfig().samples_per_arc
         return fit_bytes(self.orbits * self.arcs_per_orbit, samples, n_params)
 
