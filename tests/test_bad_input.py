@@ -581,3 +581,27 @@ def test_ctrl_c_while_starting_is_held_and_reported(capsys):
             pass
     finally:
         signal.signal(signal.SIGINT, outer)
+
+
+def test_signal_between_fit_and_write_keeps_checkpoint(files, tmp_path, monkeypatch):
+    """A Ctrl-C after the fit's last checkpoint but before its model is written (a loaded
+    machine delivers signals there) says the checkpoint is kept, and --resume finishes."""
+    from hamgrav.fit.fitted import FittedModel
+
+    arcs, _ = files
+    out = tmp_path / "lm.h5"
+    args = ["fit", str(arcs), "--model", "network", "--hidden", "4", "--solver", "lm"]
+    real = FittedModel.with_arcs_file
+
+    def interrupt(self, *a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(FittedModel, "with_arcs_file", interrupt)
+    result = runner.invoke(app, [*args, "-o", str(out)])
+    assert result.exit_code == 130, result.output
+    assert "the last checkpoint is kept" in result.output and "--resume" in result.output
+    assert checkpoint_path_for(out).exists() and not out.exists()
+    monkeypatch.setattr(FittedModel, "with_arcs_file", real)
+    result = runner.invoke(app, [*args, "-o", str(out), "--resume"])
+    assert result.exit_code == 0, result.output
+    assert out.exists() and not checkpoint_path_for(out).exists()

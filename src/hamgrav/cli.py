@@ -980,6 +980,7 @@ def fit(
     identity = estimator.checkpoint_identity(arcs, run_solver, init=previous)
     if resume:
         theta0, resume_state = load_checkpoint(ckpt, expect=identity)
+    before = _file_id(output)  # to tell, if stopped, whether this run wrote the model
     try:
         with contextlib.ExitStack() as cluster, _progress() as progress:
             if workers or scheduler:
@@ -1015,14 +1016,11 @@ def fit(
                     estimator.continue_fit(previous, arcs, **how)
                 else:
                     estimator.fit(arcs, **how)
-    except (KeyboardInterrupt, DiskError, DistributedError) as exc:
-        _fit_stopped(exc, ckpt, output, written=False)
-    fitted = estimator.fitted_.with_arcs_file(arcs_file)
-    before = _file_id(output)
-    try:
-        save_model(fitted, output)
+        # inside the same try: a signal between the fit and the model's write (a loaded
+        # machine delivers one there) must still say the checkpoint is kept
+        save_model(estimator.fitted_.with_arcs_file(arcs_file), output)
         ckpt.unlink(missing_ok=True)
-    except (KeyboardInterrupt, DiskError) as exc:
+    except (KeyboardInterrupt, DiskError, DistributedError) as exc:
         _fit_stopped(exc, ckpt, output, written=_file_id(output) not in (None, before))
     result = estimator.result_
     diag = estimator.diagnostics_
