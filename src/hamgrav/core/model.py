@@ -39,6 +39,8 @@ __all__ = [
     "evaluate_field",
     "laplacian_function",
     "evaluate_laplacian",
+    "potential_gradient_function",
+    "evaluate_potential_gradient",
     "hamiltonian_values",
     "cache_info",
 ]
@@ -279,27 +281,54 @@ def laplacian_function(model: Model):
     (lap V = 0 there), which a network, unlike an SH expansion, does not satisfy by
     construction."""
 
+    def laplacian(v):
+        return hy.sum([hy.diff(hy.diff(v, q), q) for q in POSITION])
+
+    return _with_parameter_gradient(model, "laplacian", laplacian)
+
+
+def potential_gradient_function(model: Model):
+    """Compiled (cached) potential of the learnable term and its gradient with respect to the
+    learnable parameters, at body-fixed points: a heyoka ``cfunc`` with outputs
+    (N, d N / d theta_0, ..., d N / d theta_{n-1}), inputs (x, y, z) and the learnable
+    parameters as its ``pars`` (the rows of a fit of N to sampled potential values,
+    :class:`hamgrav.core.field_problem.FieldProblem`)."""
+    return _with_parameter_gradient(model, "potential-gradient", lambda v: v)
+
+
+def _with_parameter_gradient(model: Model, name: str, of):
+    """The cached cfunc of ``of(N)`` (N: the learnable term's potential) and its gradient
+    with respect to the learnable parameters (see :func:`laplacian_function`)."""
+
     def build():
         if model.learnable is None or model.n_learn == 0:
             raise ValueError("the model has no learnable parameters")
-        v = model.learnable.potential(0)
-        lap = hy.sum([hy.diff(hy.diff(v, q), q) for q in POSITION])
-        grad = hy.diff_tensors([lap], diff_args=hy.diff_args.params, diff_order=1).jacobian
-        outputs = [lap, *(grad[0, j] for j in range(model.n_learn))]
+        value = of(model.learnable.potential(0))
+        grad = hy.diff_tensors([value], diff_args=hy.diff_args.params, diff_order=1).jacobian
+        outputs = [value, *(grad[0, j] for j in range(model.n_learn))]
         return hy.cfunc(outputs, vars=list(POSITION), compact_mode=True)
 
-    return _cached((model.key(), "laplacian"), build)
+    return _cached((model.key(), name), build)
+
+
+def _evaluate_with_gradient(function, model: Model, params: np.ndarray, points: np.ndarray):
+    points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)).T)
+    theta = np.asarray(params, float)[: model.n_learn, None]
+    pars = np.ascontiguousarray(np.broadcast_to(theta, (model.n_learn, points.shape[1])))
+    out = function(points, pars=pars)
+    return out[0], out[1:].T
 
 
 def evaluate_laplacian(model: Model, params: np.ndarray, points: np.ndarray):
     """The Laplacian of the learnable term (k,) [canonical] at ``points`` (k, 3) and its
     gradient (k, n_learn) with respect to the learnable parameters ``params[:n_learn]``."""
-    f = laplacian_function(model)
-    points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)).T)
-    theta = np.asarray(params, float)[: model.n_learn, None]
-    pars = np.ascontiguousarray(np.broadcast_to(theta, (model.n_learn, points.shape[1])))
-    out = f(points, pars=pars)
-    return out[0], out[1:].T
+    return _evaluate_with_gradient(laplacian_function(model), model, params, points)
+
+
+def evaluate_potential_gradient(model: Model, params: np.ndarray, points: np.ndarray):
+    """The learnable term's potential N (k,) [canonical] at ``points`` (k, 3) and its
+    gradient (k, n_learn) with respect to the learnable parameters ``params[:n_learn]``."""
+    return _evaluate_with_gradient(potential_gradient_function(model), model, params, points)
 
 
 def hamiltonian_values(model: Model, states: np.ndarray, params=None, time: float = 0.0):

@@ -37,7 +37,7 @@ from .arcs import Arcs
 from .model import DEFAULT_FIT_TOLERANCE, DEFAULT_SENSITIVITY_TOLERANCE, Model
 from .propagation import propagate_batch
 
-__all__ = ["ArcNormals", "ArcProblem", "Prediction", "Regulariser"]
+__all__ = ["ArcNormals", "ArcProblem", "LeastSquaresProblem", "Prediction", "Regulariser"]
 
 
 class Regulariser:
@@ -96,7 +96,143 @@ class ArcNormals:
     ata: np.ndarray
 
 
-class ArcProblem:
+class LeastSquaresProblem:
+    """What every least-squares problem of a fit shares: a training objective of residual
+    rows r(theta) grouped in units the solvers select by index (the arcs of an
+    :class:`ArcProblem`, the sample points of a
+    :class:`~hamgrav.core.field_problem.FieldProblem`), cost J = r.r / 2, design A = dr/dtheta,
+    and an optional :class:`Regulariser` on the first ``model.n_learn`` parameters.
+
+    A subclass sets ``model``, ``n_params`` and ``regulariser`` and gives :meth:`_indices`
+    (all units for None), :meth:`residuals`, :meth:`design` ((r, A) of the selected units)
+    and :meth:`fingerprint`; the solvers use only the methods defined here."""
+
+    model: Model
+    n_params: int
+    regulariser: Regulariser | None = None
+
+    def _indices(self, arc_indices) -> np.ndarray:
+        raise NotImplementedError
+
+    def design(self, theta, arc_indices=None) -> tuple[np.ndarray, np.ndarray]:
+        """(r, A) of the selected units: r (N,), A (N, n_params), materialised."""
+        raise NotImplementedError
+
+    def residuals(self, theta, arc_indices=None) -> np.ndarray:
+        """The selected units' residuals r (any shape; their squares summed give 2 J)."""
+        raise NotImplementedError
+
+    def fingerprint(self, arc_indices=None) -> str:
+        """What the selected units' sums at given parameters depend on (a hex digest)."""
+        raise NotImplementedError
+
+    def cost(self, theta, arc_indices=None) -> float:
+        """J = r.r / 2 over the selected arcs."""
+        r = self.residuals(theta, arc_indices)
+        return 0.5 * float(np.sum(r * r))
+
+    def objective(self, theta, arc_indices=None) -> float:
+        """The training objective: :meth:`cost` plus the regulariser's value (0.5 rows.rows,
+        or the prior 0.5 theta.(d * theta))."""
+        return self.with_prior(theta, self.cost(theta, arc_indices))
+
+    def with_prior(self, theta, cost: float) -> float:
+        """``cost`` plus the regulariser's value at ``theta`` (see :meth:`objective`)."""
+        if self.regulariser is None:
+            return cost
+        theta = np.asarray(theta, float)
+        if self.regulariser.diagonal() is not None:
+            prior = self.prior_diagonal()
+            return cost + 0.5 * float(theta @ (prior * theta))
+        rows, _ = self.regulariser.terms(theta[: self.model.n_learn])
+        return cost + 0.5 * float(rows @ rows)
+
+    def prior_diagonal(self) -> np.ndarray:
+        """d (n_params,) of the regulariser's quadratic prior 0.5 theta.(d * theta), zero beyond
+        the learnable parameters; all zero without one (see :class:`Regulariser`)."""
+        d = np.zeros(self.n_params)
+        diagonal = None if self.regulariser is None else self.regulariser.diagonal()
+        if diagonal is not None:
+            d[: len(diagonal)] = diagonal
+        return d
+
+    def with_regulariser(self, regulariser: Regulariser | None) -> LeastSquaresProblem:
+        """This problem (the same arcs, model and settings, sharing their caches) with another
+        regulariser."""
+        other = copy.copy(self)
+        other.regulariser = regulariser
+        return other
+
+    def normal_equations(self, theta, arc_indices=None, chunk: int = 64, *, regularised=True):
+        """(J, A^T r, A^T A), accumulated over chunks of arcs without materialising A; with
+        ``regularised`` (and a regulariser) the objective's: its rows are appended to r and A."""
+        idx = self._indices(arc_indices)
+        n = self.n_params
+        cost, atr, ata = 0.0, np.zeros(n), np.zeros((n, n))
+        for i in range(0, len(idx), chunk):
+            r, a = self.design(theta, idx[i : i + chunk])
+            cost += 0.5 * float(r @ r)
+            atr += a.T @ r
+            ata += a.T @ a
+        if regularised:
+            return self.regularise(theta, cost, atr, ata)
+        return cost, atr, ata
+
+    def arc_normals(
+        self, theta, arc_indices=None, *, known: ArcNormals | None = None, chunk: int = 64
+    ) -> ArcNormals:
+        """The arcs' own (J, A^T r, A^T A) at ``theta`` over the selected arcs, as
+        :class:`ArcNormals`. ``known`` sums of some of these arcs at the same ``theta`` (same
+        fingerprint) are added to instead of recomputed; ``known`` sums that do not apply
+        (other parameters, arcs or data) are ignored."""
+        idx = self._indices(arc_indices)
+        theta = np.array(theta, dtype=float)
+        applies = known is not None and self._applies(known, theta, idx)
+        rest = np.setdiff1d(idx, known.arcs) if applies else idx
+        cost, atr, ata = self.normal_equations(theta, rest, chunk, regularised=False)
+        if applies:
+            cost, atr, ata = known.cost + cost, known.atr + atr, known.ata + ata
+        for array in (theta, atr, ata):
+            # kept across fits (the next stage adds to them): nobody may change them in place
+            array.flags.writeable = False
+        return ArcNormals(theta, idx.copy(), self.fingerprint(idx), cost, atr, ata)
+
+    def _applies(self, known: ArcNormals, theta: np.ndarray, idx: np.ndarray) -> bool:
+        return (
+            known.params.shape == theta.shape
+            and np.array_equal(known.params, theta)
+            and np.all(np.isin(known.arcs, idx))
+            and known.fingerprint == self.fingerprint(known.arcs)
+        )
+
+    def regularise(self, theta, cost: float, atr: np.ndarray, ata: np.ndarray):
+        """The objective's (J, A^T r, A^T A) from the arcs' own (``normal_equations(...,
+        regularised=False)``): the regulariser's rows appended; new arrays, the given ones
+        are left as they are (the arcs' A^T A is what the fit diagnostics need). Without a
+        regulariser of rows the same arrays are returned: a diagonal prior stays apart
+        (:meth:`prior_diagonal`), out of the damping scale of LM, which adds it itself."""
+        if self.regulariser is None or self.regulariser.diagonal() is not None:
+            return cost, atr, ata
+        k = self.model.n_learn
+        rows, jac = self.regulariser.terms(np.asarray(theta, float)[:k])
+        atr, ata = atr.copy(), ata.copy()
+        cost += 0.5 * float(rows @ rows)
+        atr[:k] += jac.T @ rows
+        ata[:k, :k] += jac.T @ jac
+        return cost, atr, ata
+
+    def gradient(self, theta, arc_indices=None, chunk: int = 64):
+        """(J, A^T r): the cost and its gradient."""
+        idx = self._indices(arc_indices)
+        cost, atr = 0.0, np.zeros(self.n_params)
+        for i in range(0, len(idx), chunk):
+            r, a = self.design(theta, idx[i : i + chunk])
+            cost += 0.5 * float(r @ r)
+            atr += a.T @ r
+        return cost, atr
+
+
+class ArcProblem(LeastSquaresProblem):
     """The least-squares problem of fitting ``model`` to ``arcs``.
 
     Args:
@@ -253,11 +389,6 @@ class ArcProblem:
         idx = self._indices(arc_indices)
         return self._whiten(self.arcs.states[idx] - self.predict(theta, idx).states)
 
-    def cost(self, theta, arc_indices=None) -> float:
-        """J = r.r / 2 over the selected arcs."""
-        r = self.residuals(theta, arc_indices)
-        return 0.5 * float(np.sum(r * r))
-
     def arc_costs(self, theta, arc_indices=None) -> np.ndarray:
         """r.r / 2 of each selected arc in the order given, shape (n_arcs,): canonical units,
         dimensionless when whitened (:meth:`cost` is their sum)."""
@@ -277,53 +408,6 @@ class ArcProblem:
             for block in a:  # W A arc by arc, in place: no second array of A's size
                 block[...] = np.matmul(self.whitening, block)
         return r.reshape(-1), a.reshape(-1, self.n_params)
-
-    def objective(self, theta, arc_indices=None) -> float:
-        """The training objective: :meth:`cost` plus the regulariser's value (0.5 rows.rows,
-        or the prior 0.5 theta.(d * theta))."""
-        return self.with_prior(theta, self.cost(theta, arc_indices))
-
-    def with_prior(self, theta, cost: float) -> float:
-        """``cost`` plus the regulariser's value at ``theta`` (see :meth:`objective`)."""
-        if self.regulariser is None:
-            return cost
-        theta = np.asarray(theta, float)
-        if self.regulariser.diagonal() is not None:
-            prior = self.prior_diagonal()
-            return cost + 0.5 * float(theta @ (prior * theta))
-        rows, _ = self.regulariser.terms(theta[: self.model.n_learn])
-        return cost + 0.5 * float(rows @ rows)
-
-    def prior_diagonal(self) -> np.ndarray:
-        """d (n_params,) of the regulariser's quadratic prior 0.5 theta.(d * theta), zero beyond
-        the learnable parameters; all zero without one (see :class:`Regulariser`)."""
-        d = np.zeros(self.n_params)
-        diagonal = None if self.regulariser is None else self.regulariser.diagonal()
-        if diagonal is not None:
-            d[: len(diagonal)] = diagonal
-        return d
-
-    def with_regulariser(self, regulariser: Regulariser | None) -> ArcProblem:
-        """This problem (the same arcs, model and settings, sharing their caches) with another
-        regulariser."""
-        other = copy.copy(self)
-        other.regulariser = regulariser
-        return other
-
-    def normal_equations(self, theta, arc_indices=None, chunk: int = 64, *, regularised=True):
-        """(J, A^T r, A^T A), accumulated over chunks of arcs without materialising A; with
-        ``regularised`` (and a regulariser) the objective's: its rows are appended to r and A."""
-        idx = self._indices(arc_indices)
-        n = self.n_params
-        cost, atr, ata = 0.0, np.zeros(n), np.zeros((n, n))
-        for i in range(0, len(idx), chunk):
-            r, a = self.design(theta, idx[i : i + chunk])
-            cost += 0.5 * float(r @ r)
-            atr += a.T @ r
-            ata += a.T @ a
-        if regularised:
-            return self.regularise(theta, cost, atr, ata)
-        return cost, atr, ata
 
     def fingerprint(self, arc_indices=None) -> str:
         """SHA-256 (hex) of what the arcs' sums at given parameters depend on: the selected
@@ -347,56 +431,3 @@ class ArcProblem:
                 h.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
             self._fingerprints[key] = h.hexdigest()
         return self._fingerprints[key]
-
-    def arc_normals(
-        self, theta, arc_indices=None, *, known: ArcNormals | None = None, chunk: int = 64
-    ) -> ArcNormals:
-        """The arcs' own (J, A^T r, A^T A) at ``theta`` over the selected arcs, as
-        :class:`ArcNormals`. ``known`` sums of some of these arcs at the same ``theta`` (same
-        fingerprint) are added to instead of recomputed; ``known`` sums that do not apply
-        (other parameters, arcs or data) are ignored."""
-        idx = self._indices(arc_indices)
-        theta = np.array(theta, dtype=float)
-        applies = known is not None and self._applies(known, theta, idx)
-        rest = np.setdiff1d(idx, known.arcs) if applies else idx
-        cost, atr, ata = self.normal_equations(theta, rest, chunk, regularised=False)
-        if applies:
-            cost, atr, ata = known.cost + cost, known.atr + atr, known.ata + ata
-        for array in (theta, atr, ata):
-            # kept across fits (the next stage adds to them): nobody may change them in place
-            array.flags.writeable = False
-        return ArcNormals(theta, idx.copy(), self.fingerprint(idx), cost, atr, ata)
-
-    def _applies(self, known: ArcNormals, theta: np.ndarray, idx: np.ndarray) -> bool:
-        return (
-            known.params.shape == theta.shape
-            and np.array_equal(known.params, theta)
-            and np.all(np.isin(known.arcs, idx))
-            and known.fingerprint == self.fingerprint(known.arcs)
-        )
-
-    def regularise(self, theta, cost: float, atr: np.ndarray, ata: np.ndarray):
-        """The objective's (J, A^T r, A^T A) from the arcs' own (``normal_equations(...,
-        regularised=False)``): the regulariser's rows appended; new arrays, the given ones
-        are left as they are (the arcs' A^T A is what the fit diagnostics need). Without a
-        regulariser of rows the same arrays are returned: a diagonal prior stays apart
-        (:meth:`prior_diagonal`), out of the damping scale of LM, which adds it itself."""
-        if self.regulariser is None or self.regulariser.diagonal() is not None:
-            return cost, atr, ata
-        k = self.model.n_learn
-        rows, jac = self.regulariser.terms(np.asarray(theta, float)[:k])
-        atr, ata = atr.copy(), ata.copy()
-        cost += 0.5 * float(rows @ rows)
-        atr[:k] += jac.T @ rows
-        ata[:k, :k] += jac.T @ jac
-        return cost, atr, ata
-
-    def gradient(self, theta, arc_indices=None, chunk: int = 64):
-        """(J, A^T r): the cost and its gradient."""
-        idx = self._indices(arc_indices)
-        cost, atr = 0.0, np.zeros(self.n_params)
-        for i in range(0, len(idx), chunk):
-            r, a = self.design(theta, idx[i : i + chunk])
-            cost += 0.5 * float(r @ r)
-            atr += a.T @ r
-        return cost, atr

@@ -1,0 +1,88 @@
+"""The field least-squares problem: its rows and Jacobian, and a fit through the LM solver."""
+
+import numpy as np
+import pytest
+
+from hamgrav.core.field_problem import FieldProblem
+from hamgrav.core.model import Model, evaluate_field, evaluate_potential_gradient
+from hamgrav.core.terms import NeuralPotential, PointMass, SphericalHarmonics
+from hamgrav.fit.lm import LevenbergMarquardt
+
+NET = Model((PointMass(),), NeuralPotential((5, 4)))
+
+
+def _points(n, seed, low=1.2, high=2.0):
+    rng = np.random.default_rng(seed)
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    return direction * rng.uniform(low, high, size=(n, 1))
+
+
+def test_potential_gradient_matches_finite_differences():
+    theta = NET.learnable.initial_params(5) * 3.0
+    points = _points(7, 1)
+    value, grad = evaluate_potential_gradient(NET, theta, points)
+    assert np.allclose(value, evaluate_field(NET, theta, points)[0], rtol=1e-13, atol=0)
+    h = 1e-6
+    for j in range(0, NET.n_learn, 5):
+        step = np.zeros_like(theta)
+        step[j] = h
+        fd = (
+            evaluate_field(NET, theta + step, points)[0]
+            - evaluate_field(NET, theta - step, points)[0]
+        ) / (2 * h)
+        assert np.allclose(grad[:, j], fd, rtol=1e-6, atol=1e-9), j
+
+
+def test_design_is_the_residuals_jacobian():
+    theta = NET.learnable.initial_params(2)
+    points = _points(20, 2)
+    values = 1e-2 / np.linalg.norm(points - [0.1, 0.0, 0.0], axis=1)
+    problem = FieldProblem(NET, points, values)
+    r, a = problem.design(theta, [3, 4, 5])
+    assert np.allclose(r, problem.residuals(theta, [3, 4, 5]))
+    h = 1e-6
+    step = np.zeros_like(theta)
+    step[7] = h
+    fd = (
+        problem.residuals(theta + step, [3, 4, 5]) - problem.residuals(theta - step, [3, 4, 5])
+    ) / (2 * h)
+    assert np.allclose(a[:, 7], fd, rtol=1e-6, atol=1e-12)
+    # the default scale makes J half the squared relative error
+    rel = np.sqrt(np.sum((values - evaluate_field(NET, theta, points)[0]) ** 2) / np.sum(values**2))
+    assert problem.cost(theta) == pytest.approx(0.5 * rel**2, rel=1e-12)
+
+
+def test_lm_recovers_spherical_harmonics_from_their_field():
+    """SH coefficients enter linearly: the fit of their own field returns them."""
+    model = Model((PointMass(),), SphericalHarmonics(4, 1.0))
+    true = np.random.default_rng(3).normal(scale=1e-3, size=model.n_learn)
+    points = _points(400, 4)
+    values = evaluate_field(model, true, points)[0]
+    problem = FieldProblem(model, points, values)
+    result = LevenbergMarquardt(max_iter=10).solve(problem)
+    # an exact fit: the cost reaches round-off (the relative-change test then never fires)
+    assert result.cost < 1e-25
+    assert np.allclose(result.params, true, rtol=1e-7, atol=1e-12)
+
+
+def test_network_fit_lowers_the_error_and_validation_picks_the_best():
+    points = _points(300, 5)
+    values = 1e-2 / np.linalg.norm(points - [0.2, 0.1, 0.0], axis=1) - 1e-2 / np.linalg.norm(
+        points, axis=1
+    )
+    problem = FieldProblem(NET, points, values)
+    theta0 = NET.learnable.initial_params(0)
+    train, held = np.arange(250), np.arange(250, 300)
+    result = LevenbergMarquardt(max_iter=30).solve(problem, theta0, train=train, validation=held)
+    assert problem.cost(result.params, held) < 0.1 * problem.cost(theta0, held)
+    assert result.cost <= problem.objective(theta0, train)
+
+
+def test_bad_samples_are_refused():
+    with pytest.raises(ValueError, match="points must be"):
+        FieldProblem(NET, np.zeros((3, 2)), np.zeros(3))
+    with pytest.raises(ValueError, match="all zero"):
+        FieldProblem(NET, np.ones((3, 3)), np.zeros(3))
+    with pytest.raises(ValueError, match="learnable"):
+        FieldProblem(Model((PointMass(),), None), np.ones((3, 3)), np.ones(3))
