@@ -90,6 +90,7 @@ from .deep_report import (
 from .runner import Experiment, RunContext, RunOutput, register
 
 __all__ = [
+    "DeepCampaignConfig",
     "DeepExperimentConfig",
     "DeepExperiment",
     "NETWORK",
@@ -110,8 +111,10 @@ SAMPLE_FLOOR_RB = 0.96
 
 
 @dataclass(frozen=True)
-class DeepExperimentConfig(CampaignConfig):
-    """The deep-region campaign: 67P, 18 orbits in 6 stages, the network and SH 4/8/12."""
+class DeepCampaignConfig(CampaignConfig):
+    """What every deep-region experiment of 67P shares: the 18-orbit campaign that keeps its
+    samples above 0.96 R_B, the network, the evaluation sets (exterior shells, the
+    surface-following set by radial bins) and the tracked descents."""
 
     body: str = option("67p", "Body: a catalogue name, 'synthetic' or a body TOML file.")
     interior: str = option("uniform", "Truth interior (the paper's 67P truth is homogeneous).")
@@ -133,6 +136,58 @@ class DeepExperimentConfig(CampaignConfig):
         0.96,
         "Redraw orbits dipping below this radius [R_B]: no sample reaches the deep bins.",
     )
+    hidden: tuple[int, ...] = option(
+        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
+    )
+    harmonic: float = harmonic_option()
+    lm_iterations: int = lm_iterations_option(
+        "LM iteration cap of each network member at the first stage."
+    )
+    altitude_m: float = option(
+        300.0, "Altitude of the surface-following evaluation set [m].", above=0
+    )
+    shells_rb: tuple[float, ...] = option(
+        (1.2, 1.3, 1.4, 1.5, 1.6, 1.7),
+        "Exterior evaluation shells [R_B] (the orbit radii); the exterior error is their mean.",
+        above=1.0,
+        nonempty=True,
+    )
+    deep_bins_rb: tuple[float, ...] = option(
+        (0.25, 0.45, 0.55, 0.65, 0.75, 0.85, 0.95),
+        "Edges [R_B] of the deep-region radial bins of the surface-following set "
+        "(increasing, at most 1).",
+    )
+    descents: int = option(
+        9,
+        "Deployment descents tracked as one arc each (see descent_span) and assimilated "
+        "after the last stage (0: off).",
+        at_least=0,
+    )
+    descent_span: str = option(
+        "end",
+        "What a descent's arc covers: 'end', its last 40 samples at 14 s, ending at contact; "
+        "'whole', 40 samples spread from release to contact.",
+    )
+
+    def check(self) -> None:
+        super().check()
+        if self.descent_span not in DESCENT_SPANS:
+            raise InputError(
+                f"{label('descent_span')} must be one of {', '.join(DESCENT_SPANS)}, "
+                f"got {self.descent_span!r}"
+            )
+        edges = np.asarray(self.deep_bins_rb, dtype=float)
+        if len(edges) < 2 or np.any(np.diff(edges) <= 0) or edges[0] <= 0 or edges[-1] > 1:
+            raise InputError(
+                f"{label('deep_bins_rb')} must be two or more increasing edges in (0, 1], "
+                "e.g. 0.45,0.65,0.95"
+            )
+
+
+@dataclass(frozen=True)
+class DeepExperimentConfig(DeepCampaignConfig):
+    """The deep-region campaign: 67P, 18 orbits in 6 stages, the network and SH 4/8/12."""
+
     stages: int = option(
         6,
         "Stages the orbits arrive in, in a fixed order: each stage brings one orbit per start "
@@ -150,45 +205,13 @@ class DeepExperimentConfig(CampaignConfig):
         at_least=2,
         nonempty=True,
     )
-    hidden: tuple[int, ...] = option(
-        (24, 24), "Hidden layer sizes of the network.", at_least=1, nonempty=True
-    )
-    harmonic: float = harmonic_option()
-    lm_iterations: int = lm_iterations_option(
-        "LM iteration cap of each network member at the first stage."
-    )
     warm_iterations: int = option(
         NETWORK_WARM_SOLVER.max_iter,
         "LM iteration cap of each network member at warm-started stages.",
     )
     warm_gate: bool = warm_gate_option()
-    altitude_m: float = option(
-        300.0, "Altitude of the surface-following evaluation set [m].", above=0
-    )
-    shells_rb: tuple[float, ...] = option(
-        (1.2, 1.3, 1.4, 1.5, 1.6, 1.7),
-        "Exterior evaluation shells [R_B] (the orbit radii); the exterior error is their mean.",
-        above=1.0,
-        nonempty=True,
-    )
-    deep_bins_rb: tuple[float, ...] = option(
-        (0.25, 0.45, 0.55, 0.65, 0.75, 0.85, 0.95),
-        "Edges [R_B] of the deep-region radial bins of the surface-following set "
-        "(increasing, at most 1).",
-    )
     map_extent_rb: float = option(1.3, "Half-width of the equatorial maps [R_B].", above=0)
     map_points: int = option(161, "Grid points along each side of the equatorial maps.", at_least=3)
-    descents: int = option(
-        9,
-        "Deployment descents tracked as one arc each (see descent_span) and assimilated "
-        "after the last stage (0: off).",
-        at_least=0,
-    )
-    descent_span: str = option(
-        "end",
-        "What a descent's arc covers: 'end', its last 40 samples at 14 s, ending at contact; "
-        "'whole', 40 samples spread from release to contact.",
-    )
     descent_iterations: int = option(
         0,
         "0: the descents arrive as a continual stage (one held out for validation, the warm "
@@ -216,17 +239,6 @@ class DeepExperimentConfig(CampaignConfig):
         if set(self.map_degrees) - set(self.sh_degrees):
             raise InputError(
                 f"{label('map_degrees')} must be among {label('sh_degrees')} ({degrees})"
-            )
-        if self.descent_span not in DESCENT_SPANS:
-            raise InputError(
-                f"{label('descent_span')} must be one of {', '.join(DESCENT_SPANS)}, "
-                f"got {self.descent_span!r}"
-            )
-        edges = np.asarray(self.deep_bins_rb, dtype=float)
-        if len(edges) < 2 or np.any(np.diff(edges) <= 0) or edges[0] <= 0 or edges[-1] > 1:
-            raise InputError(
-                f"{label('deep_bins_rb')} must be two or more increasing edges in (0, 1], "
-                "e.g. 0.45,0.65,0.95"
             )
         if self.descents and set(self.descent_degrees) - set(self.sh_degrees):
             raise InputError(
@@ -280,7 +292,7 @@ def _value(x: float) -> float | None:
     return float(f"{x:.4g}") if np.isfinite(x) else None
 
 
-def evaluate(fitted: dict, truth: Truth, config: DeepExperimentConfig, seed: int) -> dict:
+def evaluate(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) -> dict:
     """Errors of fitted models ({name: (model, params)}): ``exterior_error`` (mean over the
     shells), ``deep_error`` (the surface-following set inside R_B), ``deep_bins`` ({model:
     {bin: error}}, None for an empty bin), ``deep_bin_points`` ({bin: points}) and the
@@ -296,7 +308,7 @@ def evaluate(fitted: dict, truth: Truth, config: DeepExperimentConfig, seed: int
     return out
 
 
-def deep_bins(fitted: dict, truth: Truth, config: DeepExperimentConfig, seed: int) -> dict:
+def deep_bins(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) -> dict:
     """The deep-region errors of fitted models ({name: (model, params)}) on the
     ``altitude_m`` surface-following set: ``deep_error`` (the set inside R_B), ``deep_bins``
     ({model: {bin: error}}, None for an empty bin) and ``deep_bin_points`` ({bin: points})."""

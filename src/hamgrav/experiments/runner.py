@@ -135,6 +135,7 @@ def _register_all() -> None:
         deep,
         descent,
         interiors,
+        ladder,
         own_body,
         selection,
         solvers,

@@ -1,0 +1,299 @@
+"""The deep-region ladder of 67P: which stage loses the network's accuracy inside R_B.
+
+The deep-region campaign (:mod:`hamgrav.experiments.deep`) leaves the network at about 0.44
+in the deepest bin where the paper reports 0.29, and the nine descents do not lower it
+reliably. This experiment takes the same campaign, network and evaluation sets and fits the
+network (and SH of one degree, as a control) on five rungs, each one step closer to the real
+problem; the first large jump between rungs names what limits the deep-region error:
+
+- (a) ``oracle-deep``: the learnable term fitted directly to the true perturbing potential
+  (minus the known part) at surface-following points inside R_B, at altitudes other than the
+  evaluation set's (:class:`hamgrav.core.field_problem.FieldProblem`, the same LM): the
+  representation's capacity floor;
+- (b) ``oracle-arcs``: the same fit at the positions the arcs sample (all at r >= 0.96 R_B),
+  with the harmonic penalty at each weight of ``oracle_harmonic`` (the network only): the
+  extrapolation floor, the truth's values standing in for what tracking can tell;
+- (c) ``noise-free``: the tracking fit on the arcs with their noise removed (each arc starts
+  from its true state);
+- (d) ``tracking``: the real fit (noisy arcs, each started from its first noisy sample), all
+  orbital arcs at once;
+- (e) ``descents-warm``: (d) warm-refitted with the tracked descents as a further stage, and
+  ``descents-scratch``: one fit from scratch on the orbital arcs and the descents.
+
+Each rung's model is scored on the deep experiment's sets: the mean error over the exterior
+shells, the 300 m surface-following set inside R_B and its radial bins. The regressions use
+the truth by construction: this is an experiment's instrument, not a fit a user can run.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..core.field_problem import FieldProblem
+from ..core.fields import central_potential, perturbing_potential
+from ..core.model import evaluate_field
+from ..errors import InputError
+from ..fit.continual import ContinualFit
+from ..fit.estimator import GravityEstimator
+from ..fit.harmonic import HarmonicPenalty
+from ..sim.descent import DescentConfig, tracked_descents
+from .common import committed_holdout, errors_of, network_best, sets_for, simulate
+from .config import label, option
+from .deep import DeepCampaignConfig, _bin_summary, _value, deep_bins, join_arcs, sample_radii
+from .runner import Experiment, RunContext, RunOutput, format_range, register
+
+__all__ = ["DeepLadderConfig", "DeepLadderExperiment", "RUNGS", "oracle_fit"]
+
+#: The rungs in order, with what each one measures (the README's first column).
+RUNGS = {
+    "oracle-deep": "(a) fit to the true field inside R_B: the representation's floor",
+    "oracle-arcs": "(b) fit to the true field where the arcs sample: the extrapolation floor",
+    "noise-free": "(c) tracking fit, noise-free arcs, true initial states",
+    "tracking": "(d) tracking fit, noisy arcs (the real fit, all orbits at once)",
+    "descents-warm": "(e) (d) warm-refitted with the tracked descents",
+    "descents-scratch": "(e) one fit from scratch on the orbits and the descents",
+}
+#: LM iteration cap of the oracle fits (per member): they start from the same
+#: initialisation as the tracking fit and have no validation stop.
+ORACLE_ITERATIONS = 40
+
+
+@dataclass(frozen=True)
+class DeepLadderConfig(DeepCampaignConfig):
+    """The deep-region ladder: the deep campaign's arcs, network and sets, five rungs."""
+
+    sh_degree: int = option(8, "Degree of the SH control fitted on every rung.", at_least=2)
+    oracle_altitudes_m: tuple[float, ...] = option(
+        (150.0, 450.0),
+        "Altitudes [m] of the surface-following points rung (a) is fitted on (those inside "
+        "R_B); the evaluation set's altitude is left out.",
+        above=0,
+        nonempty=True,
+    )
+    oracle_harmonic: tuple[float, ...] = option(
+        (0.0, 1e-5, 1e-4, 1e-3),
+        "Harmonic-penalty weights of rung (b)'s network fits (0: none); the data term is half "
+        "the squared relative error over the points.",
+        at_least=0,
+        nonempty=True,
+    )
+
+
+def oracle_fit(estimator: GravityEstimator, arcs, points, truth, *, harmonic: float = 0.0):
+    """(model, params): the estimator's learnable term (each ensemble member on its own, from
+    the estimator's initialisation) fitted by LM to the truth's perturbing potential minus the
+    model's known part at ``points`` (k, 3), canonical; ``harmonic`` > 0 adds the network's
+    harmonic penalty at that weight (collocation points as the tracking fit's)."""
+    model, _ = estimator.build_model(arcs)
+    known, _ = evaluate_field(model, np.zeros(model.n_learn), points, which="known")
+    target = perturbing_potential(truth.mascons, points) - (known - central_potential(points))
+    member = model.member()
+    penalty = None
+    if harmonic:
+        with_penalty = GravityEstimator(**{**estimator.get_params(), "harmonic": harmonic})
+        collocation = with_penalty.harmonic_penalty(member, arcs)
+        penalty = HarmonicPenalty(member, collocation.points, harmonic)
+    problem = FieldProblem(member, points, target, regulariser=penalty)
+    solver = replace(estimator.make_solver(), max_iter=ORACLE_ITERATIONS, patience=None)
+    blocks = model.learnable.split_members(estimator.initial_params(model, arcs))
+    fitted = [solver.solve(problem, block).params for block in blocks]
+    return model, np.concatenate(fitted)
+
+
+def _scores(model, params, truth, shells, config, seed) -> dict:
+    """Exterior, deep-set, deepest-bin and per-bin errors of one fitted model."""
+    exterior = np.mean(list(errors_of(model, params, truth, shells).values()))
+    ev = deep_bins({"m": (model, params)}, truth, config, seed)
+    deepest, worst = _bin_summary(ev["deep_bins"]["m"])
+    return {
+        "exterior": _value(exterior),
+        "deep": ev["deep_error"]["m"],
+        "deepest_bin": deepest,
+        "worst_bin": worst,
+        **{f"bin {k}": v for k, v in ev["deep_bins"]["m"].items()},
+    }
+
+
+class DeepLadderExperiment(Experiment):
+    """See the module docstring."""
+
+    name = "deep-ladder"
+    title = "The deep region of 67P, rung by rung: where the network's accuracy is lost"
+    config_type = DeepLadderConfig
+    aggregate_keys = ("ladder",)
+    default_output = "results/deep-67p-ladder"
+    figure_captions = {
+        "ladder.png": "relative error of the perturbing potential against r / R_B for each "
+        "rung (median over the repetitions): the deep set's radial bins inside R_B, then the "
+        "exterior shells; left the network, right the SH control (log scale; 1 = no "
+        "correction)",
+    }
+
+    def run(self, config: DeepLadderConfig, ctx: RunContext) -> RunOutput:
+        start = time.perf_counter()
+        truth, arcs = simulate(config, ctx)
+        tracking = config.campaign(ctx.seed).tracking
+        descents = tracked_descents(
+            truth,
+            config.descents,
+            DescentConfig(),
+            tracking,
+            seed=ctx.seed,
+            span=config.descent_span,
+        )
+        all_arcs = join_arcs(arcs, descents)
+        orbital = np.arange(arcs.n_arcs)
+        clean = replace(arcs, states=arcs.true_states, sigma_r_m=0.0, sigma_v_m_s=0.0)
+        body = truth.body
+        shells = sets_for(truth, config.shells_rb, (), ctx.seed)
+        raised = sets_for(truth, (), config.oracle_altitudes_m, ctx.seed)
+        deep_points = np.concatenate(
+            [p[np.linalg.norm(p, axis=1) < body.brillouin_radius] for p in raised.values()]
+        )
+        if not len(deep_points):
+            raise InputError(
+                f"no point {', '.join(f'{h:g}' for h in config.oracle_altitudes_m)} m above "
+                f"{config.body}'s surface lies inside its Brillouin sphere: give lower "
+                f"{label('oracle_altitudes_m')}"
+            )
+        arc_points = arcs.true_states[..., :3].reshape(-1, 3)
+        rows = {
+            "network": network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic),
+            f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
+        }
+        ladder, fits = {}, {}
+
+        def score(row: str, rung: str, model, params, info: dict | None = None) -> None:
+            ladder[f"{row}/{rung}"] = _scores(model, params, truth, shells, config, ctx.seed)
+            fits[f"{row}/{rung}"] = info or {}
+            ctx.say(
+                f"{row} {rung}: {ladder[f'{row}/{rung}']['exterior']} exterior, "
+                f"{ladder[f'{row}/{rung}']['deep']} deep, "
+                f"{time.perf_counter() - start:.0f} s"
+            )
+
+        for row, settings in rows.items():
+            settings = committed_holdout(settings)
+            network = settings["term"] == "network"
+
+            def estimator(settings=settings):
+                return GravityEstimator(body=body, seed=ctx.seed, mapper=ctx.mapper, **settings)
+
+            score(row, "oracle-deep", *oracle_fit(estimator(), arcs, deep_points, truth))
+            for weight in config.oracle_harmonic if network else (0.0,):
+                rung = f"oracle-arcs:{weight:g}" if network else "oracle-arcs"
+                score(row, rung, *oracle_fit(estimator(), arcs, arc_points, truth, harmonic=weight))
+            est = estimator().fit(clean)
+            score(row, "noise-free", est.model_, est.params_, est.result_.summary())
+            est = estimator()
+            run = ContinualFit(est, all_arcs)
+            record = run.add(orbital)
+            score(row, "tracking", est.model_, record.result.params, record.result.summary())
+            record = run.add(np.arange(arcs.n_arcs, all_arcs.n_arcs))
+            score(row, "descents-warm", est.model_, record.result.params, record.result.summary())
+            est = estimator().fit(all_arcs)
+            score(row, "descents-scratch", est.model_, est.params_, est.result_.summary())
+        result = {
+            "body": config.body,
+            "n_arcs": arcs.n_arcs,
+            "n_descents": descents.n_arcs,
+            "radius_rb": sample_radii(arcs, body.brillouin_radius),
+            "oracle_points": {"deep": int(len(deep_points)), "arcs": int(len(arc_points))},
+            "ladder": ladder,
+            "fits": fits,
+            "wall_s": round(time.perf_counter() - start, 1),
+        }
+        return RunOutput(result, {})
+
+    def readme(self, report: dict) -> list[str]:
+        return ladder_readme(report)
+
+    def figures(self, report: dict, artefacts: dict) -> dict:
+        return {"ladder.png": ladder_figure(report)}
+
+
+def _rows_of(agg: dict) -> list[str]:
+    """The models of the ladder, in their order of appearance."""
+    return list(dict.fromkeys(key.split("/")[0] for key in agg))
+
+
+def _rungs_of(agg: dict, row: str) -> list[str]:
+    return [key.split("/", 1)[1] for key in agg if key.split("/")[0] == row]
+
+
+def _rung_text(rung: str) -> str:
+    base, _, weight = rung.partition(":")
+    text = RUNGS.get(base, base)
+    return f"{text}, harmonic weight {weight}" if weight else text
+
+
+def ladder_readme(report: dict) -> list[str]:
+    """The README body: one table per model, rung by rung (median and range)."""
+    agg = report["aggregate"]["ladder"]
+    config = report["config"]
+    reps = report["repetitions"]
+    first = reps[0]
+    lines = [
+        f"{first['n_arcs']} arcs of {first['body']} and {first['n_descents']} tracked "
+        f"descents per repetition, the deep experiment's campaign (samples "
+        f"{first['radius_rb']['min']:.2f}-{first['radius_rb']['max']:.2f} R_B). Rung (a) is "
+        f"fitted on {first['oracle_points']['deep']} surface-following points inside R_B at "
+        f"{', '.join(f'{h:g}' for h in config['oracle_altitudes_m'])} m, rung (b) on the "
+        f"{first['oracle_points']['arcs']} true sample positions of the arcs. Errors are "
+        "relative errors of the perturbing potential (1 = no correction): `exterior` the mean "
+        f"over the shells {', '.join(f'{s:g}' for s in config['shells_rb'])} R_B, `deep` the "
+        f"{config['altitude_m']:g} m surface-following set inside R_B, then its radial bins.",
+        "",
+    ]
+    for row in _rows_of(agg):
+        rungs = _rungs_of(agg, row)
+        bins = [k for k in agg[f"{row}/{rungs[0]}"] if k.startswith("bin ")]
+        lines += [
+            f"### {row}",
+            "",
+            "| rung | exterior | deep | " + " | ".join(b[4:] for b in bins) + " |",
+            "|---|---|---|" + "---|" * len(bins),
+        ]
+        for rung in rungs:
+            stats = agg[f"{row}/{rung}"]
+            cells = [format_range(stats.get(k), "{:.3g}") for k in ("exterior", "deep", *bins)]
+            lines.append(f"| {_rung_text(rung)} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return lines
+
+
+def ladder_figure(report: dict) -> Figure:
+    """Error against r / R_B per rung: deep bins (their centres) and exterior shells."""
+    agg = report["aggregate"]["ladder"]
+    config = report["config"]
+    edges = np.asarray(config["deep_bins_rb"], float)
+    centres = list((edges[:-1] + edges[1:]) / 2)
+    shells = list(config["shells_rb"])
+    rows = _rows_of(agg)
+    fig = Figure(figsize=(5.2 * len(rows), 4.2))
+    axes = fig.subplots(1, len(rows), squeeze=False)[0]
+    for ax, row in zip(axes, rows, strict=True):
+        for rung in _rungs_of(agg, row):
+            stats = agg[f"{row}/{rung}"]
+            bins = [k for k in stats if k.startswith("bin ")]
+            deep = [stats[b]["median"] for b in bins]
+            exterior = stats["exterior"]["median"]
+            x = centres[: len(deep)] + [float(np.mean(shells))]
+            y = [np.nan if v is None else v for v in [*deep, exterior]]
+            ax.plot(x, y, marker="o", label=rung)
+        ax.axvline(1.0, color="grey", ls="--", lw=0.8)
+        ax.axhline(1.0, color="black", lw=0.6)
+        ax.set_yscale("log")
+        ax.set_xlabel("r / R_B (deep bins; last point: mean over the exterior shells)")
+        ax.set_ylabel("relative error of the perturbing potential")
+        ax.set_title(row)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+register(DeepLadderExperiment())
