@@ -205,6 +205,7 @@ def test_fit_compiles_each_structure_once(arcs):
     theta = np.zeros(model.n_learn)
     problem.normal_equations(theta)
     problem.cost(theta)
+    problem.gradient(theta)  # the adjoint's integrator: compiled on first use
     before = cache_info()
     for _ in range(3):
         problem.normal_equations(theta + 1e-4)

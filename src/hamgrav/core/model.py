@@ -35,6 +35,8 @@ __all__ = [
     "TRUTH_TOLERANCE",
     "CompiledIntegrators",
     "compiled_integrators",
+    "adjoint_system",
+    "compiled_adjoint",
     "field_function",
     "evaluate_field",
     "laplacian_function",
@@ -235,6 +237,58 @@ def compiled_integrators(
 
     kind = (f"var-{wrt}" if variational else "plain") + ("-batch" if batch else "-scalar")
     return _cached((model.key(), "batch" if batch else "scalar", kind, float(tol), width), build)
+
+
+def adjoint_system(model: Model) -> list[tuple[hy.expression, hy.expression]]:
+    """The adjoint (costate) equations of ``model``'s dynamics x' = f(x, p) for the gradient of
+    a sum of sample costs with respect to the runtime parameters p: the state x (6), its
+    costate lam' = -(df/dx)^T lam (6) and the accumulator mu' = -(df/dp)^T lam (one per
+    runtime parameter). Integrated backward from the last sample (lam = dJ/dx there, mu = 0),
+    with lam += dJ/dx_k at every earlier sample, mu at the first sample is dJ/dp for an arc
+    whose initial state does not depend on p. Zero entries of the Jacobians are left out."""
+    sys = model.system()
+    xs = [v for v, _ in sys]
+    n_par = model.n_system_params
+    jac = hy.diff_tensors(
+        [e for _, e in sys], diff_args=[*xs, *(hy.par[j] for j in range(n_par))], diff_order=1
+    ).jacobian
+    lam = list(hy.make_vars(*(f"adjoint_lam{i}" for i in range(6))))
+    mu = list(hy.make_vars(*(f"adjoint_mu{j}" for j in range(n_par))))
+    zero = hy.expression(0.0)
+
+    def minus_transpose_times_lam(column: int) -> hy.expression:
+        terms = [jac[i, column] * lam[i] for i in range(6) if jac[i, column] != zero]
+        return -hy.sum(terms) if terms else zero
+
+    return (
+        list(sys)
+        + [(lam[j], minus_transpose_times_lam(j)) for j in range(6)]
+        + [(mu[j], minus_transpose_times_lam(6 + j)) for j in range(n_par)]
+    )
+
+
+def compiled_adjoint(model: Model, tol: float) -> CompiledIntegrators:
+    """The (cached) batch-mode Taylor integrator of :func:`adjoint_system`: state
+    (x, lam, mu), 12 + n_system_params variables, the runtime parameters as its ``pars``."""
+
+    def build():
+        n_par = model.n_system_params
+        if n_par == 0:
+            raise ValueError("a model with no runtime parameters has no parameter gradient")
+        width = int(hy.recommended_simd_size())
+        state = np.zeros((12 + n_par, width))
+        state[0] = state[4] = 1.0
+        return CompiledIntegrators(
+            hy.taylor_adaptive_batch(
+                adjoint_system(model),
+                state,
+                tol=tol,
+                compact_mode=True,
+                pars=np.zeros((n_par, width)),
+            )
+        )
+
+    return _cached((model.key(), "adjoint-batch", float(tol)), build)
 
 
 def field_function(model: Model, which: str = "learnable"):

@@ -1,0 +1,114 @@
+"""The adjoint gradient against the forward sensitivities' (the independent reference), on
+the models and settings a first-order fit meets."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from hamgrav.core.model import Model
+from hamgrav.core.problem import ArcProblem
+from hamgrav.core.propagation import adjoint_gradient
+from hamgrav.core.terms import (
+    NeuralPotential,
+    PointMass,
+    SolarRadiationPressure,
+    SphericalHarmonics,
+)
+from hamgrav.errors import PropagationError
+from hamgrav.fit.adam import Adam
+
+
+def _agree(problem: ArcProblem, theta, rel=1e-9):
+    cost, grad = problem.gradient(theta)
+    reference = ArcProblem.__new__(ArcProblem)
+    reference.__dict__.update(problem.__dict__, gradient_method="forward")
+    ref_cost, ref_grad = reference.gradient(theta)
+    assert cost == pytest.approx(ref_cost, rel=1e-12)
+    assert np.abs(grad - ref_grad).max() <= rel * np.abs(ref_grad).max()
+    return grad
+
+
+@pytest.fixture(scope="module")
+def network():
+    model = Model((PointMass(),), NeuralPotential((6, 5)))
+    return model, model.learnable.initial_params(4) * 3.0  # away from the near-linear start
+
+
+def test_network_gradient_matches_forward_sensitivities(small_arcs, network):
+    model, theta = network
+    grad = _agree(ArcProblem(model, small_arcs), theta)
+    assert np.count_nonzero(grad) > 0.9 * len(grad)
+
+
+def test_whitened_and_subset_gradient(small_arcs, network):
+    model, theta = network
+    w = np.diag([3.0, 1.0, 2.0, 50.0, 40.0, 60.0])
+    w[0, 1] = 0.5  # not diagonal: W^T W, not W^2
+    problem = ArcProblem(model, small_arcs, whitening=w)
+    _agree(problem, theta)
+    cost, grad = problem.gradient(theta, [1, 4, 7])
+    forward = ArcProblem(model, small_arcs, whitening=w, gradient_method="forward")
+    ref_cost, ref_grad = forward.gradient(theta, [1, 4, 7])
+    assert cost == pytest.approx(ref_cost, rel=1e-12)
+    assert np.abs(grad - ref_grad).max() <= 1e-9 * np.abs(ref_grad).max()
+
+
+def test_sh_and_estimated_srp_gradient(small_arcs, synthetic_truth):
+    units = synthetic_truth.body.units
+    srp = SolarRadiationPressure(SolarRadiationPressure.pressure_for(units), 20.0)
+    sh = SphericalHarmonics(3, synthetic_truth.body.brillouin_radius)
+    model = Model((PointMass(),), sh, (srp,))
+    problem = ArcProblem(model, small_arcs, estimate_trajectory_params=True)
+    theta = np.concatenate([np.full(sh.n_params, 2e-3), [0.3, 0.8, 1.2]])
+    grad = _agree(problem, theta)
+    assert np.all(grad[sh.n_params :] != 0)  # each trajectory's coefficient from its own arcs
+
+
+def test_sparse_samples_are_rerun_until_accurate(small_arcs, network):
+    """Three samples far apart: the backward pass's steps are not short there, and an arc
+    whose backward state misses its anchor is run again at the tight tolerance."""
+    model, theta = network
+    keep = [0, 19, 39]
+    sparse = replace(
+        small_arcs,
+        times=small_arcs.times[:, keep],
+        states=small_arcs.states[:, keep],
+        true_states=small_arcs.true_states[:, keep],
+    )
+    _agree(ArcProblem(model, sparse), theta)
+    rp = np.repeat(theta[:, None], sparse.n_arcs, axis=1)
+    loose = adjoint_gradient(
+        model,
+        sparse.states[:, 0],
+        sparse.times,
+        sparse.states,
+        rp,
+        n_shared=model.n_learn,
+        adjoint_tol=1e-2,
+    )
+    assert loose.retried.any()
+    ref = ArcProblem(model, sparse, gradient_method="forward").gradient(theta)[1]
+    assert np.abs(loose.gradient - ref).max() <= 1e-9 * np.abs(ref).max()
+
+
+def test_adam_steps_equal_with_either_gradient(small_arcs, network):
+    model, theta = network
+    runs = [
+        Adam(steps=5, batch_size=4, learning_rate=1e-3, seed=1).solve(
+            ArcProblem(model, small_arcs, gradient_method=method), theta
+        )
+        for method in ("adjoint", "forward")
+    ]
+    assert np.allclose(runs[0].params, runs[1].params, rtol=0, atol=1e-12)
+
+
+def test_stiff_parameters_are_reported(small_arcs, network):
+    model, theta = network
+    with pytest.raises(PropagationError, match="gradient"):
+        ArcProblem(model, small_arcs, max_steps=1).gradient(theta * 1e3)
+
+
+def test_unknown_method_refused(small_arcs, network):
+    with pytest.raises(ValueError, match="gradient_method"):
+        ArcProblem(network[0], small_arcs, gradient_method="reverse")
