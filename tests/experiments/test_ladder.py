@@ -21,7 +21,10 @@ def test_oracle_fit_carries_the_field_beside_the_known_part(prior, synthetic_tru
     r_b = body.brillouin_radius
     points = np.concatenate([shell_points(s * r_b, 300, seed=k) for k, s in enumerate((1.2, 1.5))])
     est = GravityEstimator(term="sh", degree=6, body=body, prior=prior, prior_mascons=50)
-    model, params = oracle_fit(est, small_arcs, points, synthetic_truth)
+    model, params, info = oracle_fit(est, small_arcs, points, synthetic_truth)
+    if prior is None:  # then the target is the truth's perturbing potential itself
+        own = field_errors(model, params, synthetic_truth.mascons, {"p": points})["p"]
+        assert info["on_points"] == pytest.approx(own, rel=1e-3) and own < 0.02
     error = field_errors(
         model, params, synthetic_truth.mascons, {"r": shell_points(1.35 * r_b, 200)}
     )
@@ -37,13 +40,13 @@ def test_oracle_fit_of_a_network_lowers_its_error_where_it_is_sampled(synthetic_
     body = synthetic_truth.body
     points = shell_points(1.3 * body.brillouin_radius, 400, seed=3)
     est = GravityEstimator(term="network", hidden=(8,), members=2, body=body, seed=1, solver="lm")
-    model, params = oracle_fit(est, small_arcs, points, synthetic_truth)
+    model, params, _ = oracle_fit(est, small_arcs, points, synthetic_truth)
     start = est.initial_params(model, small_arcs)
     before = field_errors(model, start, synthetic_truth.mascons, {"p": points})["p"]
     after = field_errors(model, params, synthetic_truth.mascons, {"p": points})["p"]
     assert after < 0.3 * before and len(params) == len(start)
-    penalised, _ = oracle_fit(est, small_arcs, points, synthetic_truth, harmonic=1e-4), None
-    assert np.all(np.isfinite(penalised[1]))
+    _, penalised, _ = oracle_fit(est, small_arcs, points, synthetic_truth, harmonic=1e-4)
+    assert np.all(np.isfinite(penalised))
 
 
 def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
@@ -72,10 +75,16 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
         "network/oracle-arcs:0.0001",
     }
     expected |= {f"sh2/{r}" for r in RUNGS}
+    assert all("on_points" in ladder[k] for k in expected if "oracle" in k)
     assert set(ladder) == expected
     assert all(np.isfinite(v["exterior"]) for v in ladder.values())
     readme = (tmp_path / "README.md").read_text()
-    assert "### network" in readme and "### sh2" in readme and readme.count("| (e)") == 4
+    assert (
+        "### network" in readme
+        and "### sh2" in readme
+        and readme.count("| (e)") == 4
+        and readme.count("| (a+b)") == 2
+    )
     assert (tmp_path / "ladder.png").stat().st_size > 0
     assert json.loads((tmp_path / "results.json").read_text())["config"]["sh_degree"] == 2
 
@@ -84,3 +93,8 @@ def test_oracle_altitudes_above_the_brillouin_sphere_are_refused(tmp_path):
     config = DeepLadderConfig(body="synthetic", n_mascons=60, orbits=2, oracle_altitudes_m=(300.0,))
     with pytest.raises(InputError, match="no point 300 m above synthetic's surface"):
         run_experiment("deep-ladder", config, output=tmp_path, verbose=False)
+
+
+def test_unknown_rung_refused():
+    with pytest.raises(InputError, match="unknown rung"):
+        DeepLadderConfig.from_dict({"rungs": ["oracle-deep", "oracle-everything"]})

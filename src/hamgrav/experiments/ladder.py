@@ -13,6 +13,9 @@ problem; the first large jump between rungs names what limits the deep-region er
 - (b) ``oracle-arcs``: the same fit at the positions the arcs sample (all at r >= 0.96 R_B),
   with the harmonic penalty at each weight of ``oracle_harmonic`` (the network only): the
   extrapolation floor, the truth's values standing in for what tracking can tell;
+- (a+b) ``oracle-both``: the fit on the points of (a) and (b) together: whether the
+  representation can hold the deep and the exterior field at once (what assimilating
+  descents asks of it);
 - (c) ``noise-free``: the tracking fit on the arcs with their noise removed (each arc starts
   from its true state);
 - (d) ``tracking``: the real fit (noisy arcs, each started from its first noisy sample), all
@@ -52,6 +55,7 @@ __all__ = ["DeepLadderConfig", "DeepLadderExperiment", "RUNGS", "oracle_fit"]
 RUNGS = {
     "oracle-deep": "(a) fit to the true field inside R_B: the representation's floor",
     "oracle-arcs": "(b) fit to the true field where the arcs sample: the extrapolation floor",
+    "oracle-both": "(a+b) fit to the true field inside R_B and where the arcs sample",
     "noise-free": "(c) tracking fit, noise-free arcs, true initial states",
     "tracking": "(d) tracking fit, noisy arcs (the real fit, all orbits at once)",
     "descents-warm": "(e) (d) warm-refitted with the tracked descents",
@@ -81,13 +85,29 @@ class DeepLadderConfig(DeepCampaignConfig):
         at_least=0,
         nonempty=True,
     )
+    rungs: tuple[str, ...] = option(
+        tuple(RUNGS),
+        f"Rungs to run, among {', '.join(RUNGS)} (e.g. the oracle rungs alone to compare "
+        "network shapes).",
+        nonempty=True,
+    )
+
+    def check(self) -> None:
+        super().check()
+        unknown = sorted(set(self.rungs) - set(RUNGS))
+        if unknown:
+            raise InputError(
+                f"{label('rungs')}: unknown rung(s) {', '.join(unknown)}; known: {', '.join(RUNGS)}"
+            )
 
 
 def oracle_fit(estimator: GravityEstimator, arcs, points, truth, *, harmonic: float = 0.0):
-    """(model, params): the estimator's learnable term (each ensemble member on its own, from
-    the estimator's initialisation) fitted by LM to the truth's perturbing potential minus the
-    model's known part at ``points`` (k, 3), canonical; ``harmonic`` > 0 adds the network's
-    harmonic penalty at that weight (collocation points as the tracking fit's)."""
+    """(model, params, info): the estimator's learnable term (each ensemble member on its own,
+    from the estimator's initialisation) fitted by LM to the truth's perturbing potential minus
+    the model's known part at ``points`` (k, 3), canonical; ``harmonic`` > 0 adds the
+    network's harmonic penalty at that weight (collocation points as the tracking fit's).
+    ``info``: ``on_points``, the ensemble's relative error on the fitted points, and each
+    member's solver summary."""
     model, _ = estimator.build_model(arcs)
     known, _ = evaluate_field(model, np.zeros(model.n_learn), points, which="known")
     target = perturbing_potential(truth.mascons, points) - (known - central_potential(points))
@@ -100,8 +120,15 @@ def oracle_fit(estimator: GravityEstimator, arcs, points, truth, *, harmonic: fl
     problem = FieldProblem(member, points, target, regulariser=penalty)
     solver = replace(estimator.make_solver(), max_iter=ORACLE_ITERATIONS, patience=None)
     blocks = model.learnable.split_members(estimator.initial_params(model, arcs))
-    fitted = [solver.solve(problem, block).params for block in blocks]
-    return model, np.concatenate(fitted)
+    results = [solver.solve(problem, block) for block in blocks]
+    params = np.concatenate([r.params for r in results])
+    ensemble, _ = evaluate_field(model, params, points)
+    on_points = np.sqrt(np.sum((ensemble - target) ** 2) / np.sum(target**2))
+    return (
+        model,
+        params,
+        {"on_points": _value(on_points), "members": [r.summary() for r in results]},
+    )
 
 
 def _scores(model, params, truth, shells, config, seed) -> dict:
@@ -167,15 +194,24 @@ class DeepLadderExperiment(Experiment):
         }
         ladder, fits = {}, {}
 
-        def score(row: str, rung: str, model, params, info: dict | None = None) -> None:
-            ladder[f"{row}/{rung}"] = _scores(model, params, truth, shells, config, ctx.seed)
-            fits[f"{row}/{rung}"] = info or {}
+        def score(row: str, rung: str, model, params, info: dict) -> None:
+            key = f"{row}/{rung}"
+            ladder[key] = _scores(model, params, truth, shells, config, ctx.seed)
+            if "on_points" in info:
+                ladder[key]["on_points"] = info["on_points"]
+            fits[key] = info
+            own = f", {info['on_points']} on its points" if "on_points" in info else ""
             ctx.say(
-                f"{row} {rung}: {ladder[f'{row}/{rung}']['exterior']} exterior, "
-                f"{ladder[f'{row}/{rung}']['deep']} deep, "
-                f"{time.perf_counter() - start:.0f} s"
+                f"{row} {rung}: {ladder[key]['exterior']} exterior, {ladder[key]['deep']} "
+                f"deep{own}, {time.perf_counter() - start:.0f} s"
             )
 
+        oracle_points = {
+            "oracle-deep": deep_points,
+            "oracle-arcs": arc_points,
+            "oracle-both": np.concatenate([deep_points, arc_points]),
+        }
+        wanted = set(config.rungs)
         for row, settings in rows.items():
             settings = committed_holdout(settings)
             network = settings["term"] == "network"
@@ -183,20 +219,29 @@ class DeepLadderExperiment(Experiment):
             def estimator(settings=settings):
                 return GravityEstimator(body=body, seed=ctx.seed, mapper=ctx.mapper, **settings)
 
-            score(row, "oracle-deep", *oracle_fit(estimator(), arcs, deep_points, truth))
-            for weight in config.oracle_harmonic if network else (0.0,):
-                rung = f"oracle-arcs:{weight:g}" if network else "oracle-arcs"
-                score(row, rung, *oracle_fit(estimator(), arcs, arc_points, truth, harmonic=weight))
-            est = estimator().fit(clean)
-            score(row, "noise-free", est.model_, est.params_, est.result_.summary())
-            est = estimator()
-            run = ContinualFit(est, all_arcs)
-            record = run.add(orbital)
-            score(row, "tracking", est.model_, record.result.params, record.result.summary())
-            record = run.add(np.arange(arcs.n_arcs, all_arcs.n_arcs))
-            score(row, "descents-warm", est.model_, record.result.params, record.result.summary())
-            est = estimator().fit(all_arcs)
-            score(row, "descents-scratch", est.model_, est.params_, est.result_.summary())
+            for rung, points in oracle_points.items():
+                if rung not in wanted:
+                    continue
+                weights = config.oracle_harmonic if network and rung == "oracle-arcs" else (0.0,)
+                for weight in weights:
+                    name = f"{rung}:{weight:g}" if len(weights) > 1 else rung
+                    fit = oracle_fit(estimator(), arcs, points, truth, harmonic=weight)
+                    score(row, name, *fit)
+            if "noise-free" in wanted:
+                est = estimator().fit(clean)
+                score(row, "noise-free", est.model_, est.params_, est.result_.summary())
+            if wanted & {"tracking", "descents-warm"}:
+                est = estimator()
+                run = ContinualFit(est, all_arcs)
+                record = run.add(orbital)
+                score(row, "tracking", est.model_, record.result.params, record.result.summary())
+                if "descents-warm" in wanted:
+                    record = run.add(np.arange(arcs.n_arcs, all_arcs.n_arcs))
+                    summary = record.result.summary()
+                    score(row, "descents-warm", est.model_, record.result.params, summary)
+            if "descents-scratch" in wanted:
+                est = estimator().fit(all_arcs)
+                score(row, "descents-scratch", est.model_, est.params_, est.result_.summary())
         result = {
             "body": config.body,
             "n_arcs": arcs.n_arcs,
@@ -244,7 +289,8 @@ def ladder_readme(report: dict) -> list[str]:
         f"fitted on {first['oracle_points']['deep']} surface-following points inside R_B at "
         f"{', '.join(f'{h:g}' for h in config['oracle_altitudes_m'])} m, rung (b) on the "
         f"{first['oracle_points']['arcs']} true sample positions of the arcs. Errors are "
-        "relative errors of the perturbing potential (1 = no correction): `exterior` the mean "
+        "relative errors of the perturbing potential (1 = no correction): `on its points` an "
+        "oracle fit's error on the points it was fitted on, `exterior` the mean "
         f"over the shells {', '.join(f'{s:g}' for s in config['shells_rb'])} R_B, `deep` the "
         f"{config['altitude_m']:g} m surface-following set inside R_B, then its radial bins.",
         "",
@@ -255,12 +301,13 @@ def ladder_readme(report: dict) -> list[str]:
         lines += [
             f"### {row}",
             "",
-            "| rung | exterior | deep | " + " | ".join(b[4:] for b in bins) + " |",
-            "|---|---|---|" + "---|" * len(bins),
+            "| rung | on its points | exterior | deep | " + " | ".join(b[4:] for b in bins) + " |",
+            "|---|---|---|---|" + "---|" * len(bins),
         ]
         for rung in rungs:
             stats = agg[f"{row}/{rung}"]
-            cells = [format_range(stats.get(k), "{:.3g}") for k in ("exterior", "deep", *bins)]
+            keys = ("on_points", "exterior", "deep", *bins)
+            cells = [format_range(stats.get(k), "{:.3g}") for k in keys]
             lines.append(f"| {_rung_text(rung)} | " + " | ".join(cells) + " |")
         lines.append("")
     return lines
