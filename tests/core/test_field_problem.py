@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hamgrav.core.field_problem import FieldProblem
-from hamgrav.core.model import Model, evaluate_field, evaluate_potential_gradient
+from hamgrav.core.model import Model, evaluate_field, evaluate_field_parameter_gradient
 from hamgrav.core.terms import NeuralPotential, PointMass, SphericalHarmonics
 from hamgrav.fit.lm import LevenbergMarquardt
 
@@ -18,20 +18,25 @@ def _points(n, seed, low=1.2, high=2.0):
     return direction * rng.uniform(low, high, size=(n, 1))
 
 
-def test_potential_gradient_matches_finite_differences():
+def test_field_parameter_gradient_matches_finite_differences():
     theta = NET.learnable.initial_params(5) * 3.0
     points = _points(7, 1)
-    value, grad = evaluate_potential_gradient(NET, theta, points)
-    assert np.allclose(value, evaluate_field(NET, theta, points)[0], rtol=1e-13, atol=0)
+    fields, grad = evaluate_field_parameter_gradient(NET, theta, points)
+    potential, acceleration = evaluate_field(NET, theta, points)
+    assert np.allclose(fields[:, 0], potential, rtol=1e-13, atol=0)
+    assert np.allclose(fields[:, 1:], acceleration, rtol=1e-12, atol=1e-15)
     h = 1e-6
     for j in range(0, NET.n_learn, 5):
         step = np.zeros_like(theta)
         step[j] = h
-        fd = (
-            evaluate_field(NET, theta + step, points)[0]
-            - evaluate_field(NET, theta - step, points)[0]
-        ) / (2 * h)
-        assert np.allclose(grad[:, j], fd, rtol=1e-6, atol=1e-9), j
+        plus, minus = (
+            evaluate_field(NET, theta + step, points),
+            evaluate_field(NET, theta - step, points),
+        )
+        fd_v = (plus[0] - minus[0]) / (2 * h)
+        fd_a = (plus[1] - minus[1]) / (2 * h)
+        assert np.allclose(grad[:, 0, j], fd_v, rtol=1e-6, atol=1e-9), j
+        assert np.allclose(grad[:, 1:, j], fd_a, rtol=1e-6, atol=1e-9), j
 
 
 def test_design_is_the_residuals_jacobian():
@@ -51,6 +56,29 @@ def test_design_is_the_residuals_jacobian():
     # the default scale makes J half the squared relative error
     rel = np.sqrt(np.sum((values - evaluate_field(NET, theta, points)[0]) ** 2) / np.sum(values**2))
     assert problem.cost(theta) == pytest.approx(0.5 * rel**2, rel=1e-12)
+
+
+def test_accelerations_add_three_rows_per_point():
+    theta = NET.learnable.initial_params(2)
+    points = _points(20, 2)
+    centre = np.array([0.1, 0.0, 0.0])
+    values = 1e-2 / np.linalg.norm(points - centre, axis=1)
+    acc = -1e-2 * (points - centre) / np.linalg.norm(points - centre, axis=1)[:, None] ** 3
+    problem = FieldProblem(NET, points, values, acc)
+    r, a = problem.design(theta, [0, 5])
+    assert r.shape == (8,) and a.shape == (8, NET.n_learn)
+    h = 1e-6
+    step = np.zeros_like(theta)
+    step[3] = h
+    fd = (problem.residuals(theta + step, [0, 5]) - problem.residuals(theta - step, [0, 5])) / (
+        2 * h
+    )
+    assert np.allclose(a[:, 3], fd.reshape(-1), rtol=1e-6, atol=1e-12)
+    # J: half the squared relative errors of the potential and of the acceleration
+    v, g = evaluate_field(NET, theta, points)
+    rel_v = np.sum((values - v) ** 2) / np.sum(values**2)
+    rel_a = np.sum((acc - g) ** 2) / np.sum(acc**2)
+    assert problem.cost(theta) == pytest.approx(0.5 * (rel_v + rel_a), rel=1e-12)
 
 
 def test_lm_recovers_spherical_harmonics_from_their_field():
@@ -82,6 +110,8 @@ def test_network_fit_lowers_the_error_and_validation_picks_the_best():
 def test_bad_samples_are_refused():
     with pytest.raises(ValueError, match="points must be"):
         FieldProblem(NET, np.zeros((3, 2)), np.zeros(3))
+    with pytest.raises(ValueError, match="accelerations must be"):
+        FieldProblem(NET, np.ones((3, 3)), np.ones(3), np.ones((2, 3)))
     with pytest.raises(ValueError, match="all zero"):
         FieldProblem(NET, np.ones((3, 3)), np.zeros(3))
     with pytest.raises(ValueError, match="learnable"):

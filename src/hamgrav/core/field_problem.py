@@ -2,9 +2,10 @@
 
 Where :class:`~hamgrav.core.problem.ArcProblem` fits a model to tracked arcs, a
 :class:`FieldProblem` fits its learnable term N directly to values V_k of a perturbing
-potential at points x_k: residuals r_k = s (V_k - N(x_k)) with one scale s, and their exact
-parameter gradients from a compiled ``cfunc``
-(:func:`hamgrav.core.model.evaluate_potential_gradient`). It is the oracle of a
+potential at points x_k, and optionally to its gradient a_k there (the acceleration it
+adds): residuals s_V (V_k - N(x_k)) and s_a (a_k - grad N(x_k)), and their exact parameter
+gradients from a compiled ``cfunc``
+(:func:`hamgrav.core.model.evaluate_field_parameter_gradient`). It is the oracle of a
 representation: how well the term can carry a known field where it is sampled, and away from
 it. The solvers see it through :class:`~hamgrav.core.problem.LeastSquaresProblem` (each
 sample point is one unit they select by index, as they select arcs), so the same
@@ -18,22 +19,25 @@ import json
 
 import numpy as np
 
-from .model import Model, evaluate_field, evaluate_potential_gradient
+from .model import Model, evaluate_field_parameter_gradient
 from .problem import LeastSquaresProblem, Regulariser
 
 __all__ = ["FieldProblem"]
 
 
 class FieldProblem(LeastSquaresProblem):
-    """Least squares of the learnable term of ``model`` on potential ``values`` (k,) at
-    ``points`` (k, 3), canonical: r = ``scale`` (values - N(points)).
+    """Least squares of the learnable term of ``model`` on potential ``values`` (k,) and,
+    when given, ``accelerations`` (k, 3) at ``points`` (k, 3), canonical: per point the rows
+    s_V (V - N) and s_a (a - grad N).
 
     Args:
         model: a model with a learnable term (its known terms are not used).
         points: (k, 3) body-fixed sample points, canonical.
         values: (k,) the perturbing potential to fit at them, canonical.
-        scale: the residuals' factor s > 0; default 1 / (rms(values) sqrt(k)), which makes
-            J half the squared relative error of the fit over the points.
+        accelerations: optional (k, 3) its gradient there (canonical acceleration).
+        scale: s_V > 0; default 1 / (rms(V) sqrt(k)): the potential's part of J is half the
+            squared relative error of the fit over the points.
+        acceleration_scale: s_a > 0; default 1 / (rms(|a|) sqrt(k)), likewise.
         regulariser: optional :class:`~hamgrav.core.problem.Regulariser` of the learnable
             parameters (e.g. the harmonic penalty), added to the training objective.
     """
@@ -43,8 +47,10 @@ class FieldProblem(LeastSquaresProblem):
         model: Model,
         points: np.ndarray,
         values: np.ndarray,
+        accelerations: np.ndarray | None = None,
         *,
         scale: float | None = None,
+        acceleration_scale: float | None = None,
         regulariser: Regulariser | None = None,
     ):
         if model.learnable is None or model.n_learn == 0:
@@ -57,46 +63,73 @@ class FieldProblem(LeastSquaresProblem):
             )
         if not len(values) or not (np.isfinite(points).all() and np.isfinite(values).all()):
             raise ValueError("points and values must be finite and not empty")
-        if scale is None:
-            rms = float(np.sqrt(np.mean(values**2)))
-            if rms == 0:
-                raise ValueError("values are all zero: give a scale")
-            scale = 1.0 / (rms * np.sqrt(len(values)))
-        if not scale > 0:
-            raise ValueError(f"scale must be positive, got {scale}")
-        for array in (points, values):
-            array.flags.writeable = False
+        targets = values[:, None]
+        scales = [_default_scale(values, scale, "values")]
+        if accelerations is not None:
+            accelerations = np.array(accelerations, dtype=float)
+            if accelerations.shape != points.shape or not np.isfinite(accelerations).all():
+                raise ValueError(f"accelerations must be finite and {points.shape}")
+            targets = np.column_stack([values, accelerations])
+            s_a = _default_scale(accelerations, acceleration_scale, "accelerations")
+            scales += [s_a] * 3
+        targets.flags.writeable = False
+        points.flags.writeable = False
         self.model = model
         self.points = points
-        self.values = values
-        self.scale = float(scale)
+        self.targets = targets
+        self.scales = np.array(scales)
         self.regulariser = regulariser
         self.n_params = model.n_learn
         self._fingerprints: dict[bytes, str] = {}
 
+    @property
+    def values(self) -> np.ndarray:
+        """The potential values fitted, (k,)."""
+        return self.targets[:, 0]
+
     def _indices(self, arc_indices) -> np.ndarray:
-        return np.arange(len(self.values)) if arc_indices is None else np.asarray(arc_indices)
+        return np.arange(len(self.points)) if arc_indices is None else np.asarray(arc_indices)
+
+    def _fields(self, theta, idx, gradient: bool):
+        n_rows = self.targets.shape[1]
+        fields, grad = evaluate_field_parameter_gradient(self.model, theta, self.points[idx])
+        r = self.scales * (self.targets[idx] - fields[:, :n_rows])
+        if not gradient:
+            return r, None
+        return r, -self.scales[None, :, None] * grad[:, :n_rows]
 
     def residuals(self, theta, arc_indices=None) -> np.ndarray:
-        """r = s (V - N) at the selected points, shape (k,)."""
-        idx = self._indices(arc_indices)
-        potential, _ = evaluate_field(self.model, theta, self.points[idx])
-        return self.scale * (self.values[idx] - potential)
+        """r at the selected points, shape (k,), or (k, 4) with accelerations."""
+        r = self._fields(theta, self._indices(arc_indices), False)[0]
+        return r[:, 0] if r.shape[1] == 1 else r
 
     def design(self, theta, arc_indices=None) -> tuple[np.ndarray, np.ndarray]:
-        """(r, A) at the selected points: r (k,), A = dr/dtheta = -s dN/dtheta (k, n_params)."""
-        idx = self._indices(arc_indices)
-        potential, grad = evaluate_potential_gradient(self.model, theta, self.points[idx])
-        return self.scale * (self.values[idx] - potential), -self.scale * grad
+        """(r, A) at the selected points: r flattened point by point, A = dr/dtheta
+        (rows, n_params)."""
+        r, a = self._fields(theta, self._indices(arc_indices), True)
+        return r.reshape(-1), a.reshape(-1, self.n_params)
 
     def fingerprint(self, arc_indices=None) -> str:
-        """SHA-256 (hex) of the selected points and values, the scale and the model."""
+        """SHA-256 (hex) of the selected points and targets, the scales and the model."""
         idx = np.asarray(self._indices(arc_indices), dtype=np.intp)
         key = idx.tobytes()
         if key not in self._fingerprints:
             h = hashlib.sha256(np.ascontiguousarray(self.points[idx]).tobytes())
-            h.update(np.ascontiguousarray(self.values[idx]).tobytes())
-            h.update(repr(self.scale).encode())
+            h.update(np.ascontiguousarray(self.targets[idx]).tobytes())
+            h.update(self.scales.tobytes())
             h.update(json.dumps(self.model.describe(), sort_keys=True, default=repr).encode())
             self._fingerprints[key] = h.hexdigest()
         return self._fingerprints[key]
+
+
+def _default_scale(target: np.ndarray, scale: float | None, what: str) -> float:
+    """1 / (rms of the target's magnitude x sqrt(points)), or the given scale, checked."""
+    if scale is None:
+        magnitude = np.sqrt(np.sum(target.reshape(len(target), -1) ** 2, axis=1))
+        rms = float(np.sqrt(np.mean(magnitude**2)))
+        if rms == 0:
+            raise ValueError(f"{what} are all zero: give a scale")
+        scale = 1.0 / (rms * np.sqrt(len(target)))
+    if not scale > 0:
+        raise ValueError(f"scale of the {what} must be positive, got {scale}")
+    return float(scale)

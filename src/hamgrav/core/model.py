@@ -41,8 +41,8 @@ __all__ = [
     "evaluate_field",
     "laplacian_function",
     "evaluate_laplacian",
-    "potential_gradient_function",
-    "evaluate_potential_gradient",
+    "field_parameter_gradient_function",
+    "evaluate_field_parameter_gradient",
     "hamiltonian_values",
     "cache_info",
 ]
@@ -341,48 +341,63 @@ def laplacian_function(model: Model):
     return _with_parameter_gradient(model, "laplacian", laplacian)
 
 
-def potential_gradient_function(model: Model):
-    """Compiled (cached) potential of the learnable term and its gradient with respect to the
-    learnable parameters, at body-fixed points: a heyoka ``cfunc`` with outputs
-    (N, d N / d theta_0, ..., d N / d theta_{n-1}), inputs (x, y, z) and the learnable
-    parameters as its ``pars`` (the rows of a fit of N to sampled potential values,
+def field_parameter_gradient_function(model: Model):
+    """Compiled (cached) potential N of the learnable term and its spatial gradient (the
+    acceleration it adds), with their gradients with respect to the learnable parameters, at
+    body-fixed points: a heyoka ``cfunc`` with outputs (N, dN/dx, dN/dy, dN/dz), then d/d theta_j
+    of each of the four (value-major), inputs (x, y, z) and the learnable parameters as its
+    ``pars`` (the rows of a fit of N to sampled values of a field,
     :class:`hamgrav.core.field_problem.FieldProblem`)."""
-    return _with_parameter_gradient(model, "potential-gradient", lambda v: v)
+    return _with_parameter_gradient(
+        model, "field-gradient", lambda v: [v, *(hy.diff(v, q) for q in POSITION)]
+    )
 
 
 def _with_parameter_gradient(model: Model, name: str, of):
-    """The cached cfunc of ``of(N)`` (N: the learnable term's potential) and its gradient
-    with respect to the learnable parameters (see :func:`laplacian_function`)."""
+    """The cached cfunc of the values ``of(N)`` (one expression or a list; N: the learnable
+    term's potential) and their gradients with respect to the learnable parameters, value by
+    value (see :func:`laplacian_function`)."""
 
     def build():
         if model.learnable is None or model.n_learn == 0:
             raise ValueError("the model has no learnable parameters")
-        value = of(model.learnable.potential(0))
-        grad = hy.diff_tensors([value], diff_args=hy.diff_args.params, diff_order=1).jacobian
-        outputs = [value, *(grad[0, j] for j in range(model.n_learn))]
-        return hy.cfunc(outputs, vars=list(POSITION), compact_mode=True)
+        values = of(model.learnable.potential(0))
+        values = values if isinstance(values, list) else [values]
+        grad = hy.diff_tensors(values, diff_args=hy.diff_args.params, diff_order=1).jacobian
+        rows = [grad[i, j] for i in range(len(values)) for j in range(model.n_learn)]
+        return hy.cfunc([*values, *rows], vars=list(POSITION), compact_mode=True)
 
     return _cached((model.key(), name), build)
 
 
-def _evaluate_with_gradient(function, model: Model, params: np.ndarray, points: np.ndarray):
+def _evaluate_with_gradient(function, model: Model, params, points, n_values: int = 1):
+    """(values (k, n_values), gradients (k, n_values, n_learn)) of a cfunc of
+    :func:`_with_parameter_gradient` at ``points`` (k, 3)."""
     points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)).T)
-    theta = np.asarray(params, float)[: model.n_learn, None]
-    pars = np.ascontiguousarray(np.broadcast_to(theta, (model.n_learn, points.shape[1])))
-    out = function(points, pars=pars)
-    return out[0], out[1:].T
+    n, k = model.n_learn, points.shape[1]
+    # a cfunc counts parameters up to the last one its outputs use (none: linear in them)
+    used = function.nparams
+    if used:
+        theta = np.asarray(params, float)[:used, None]
+        out = function(points, pars=np.ascontiguousarray(np.broadcast_to(theta, (used, k))))
+    else:
+        out = function(points)
+    return out[:n_values].T, out[n_values:].reshape(n_values, n, k).transpose(2, 0, 1)
 
 
 def evaluate_laplacian(model: Model, params: np.ndarray, points: np.ndarray):
     """The Laplacian of the learnable term (k,) [canonical] at ``points`` (k, 3) and its
     gradient (k, n_learn) with respect to the learnable parameters ``params[:n_learn]``."""
-    return _evaluate_with_gradient(laplacian_function(model), model, params, points)
+    values, grad = _evaluate_with_gradient(laplacian_function(model), model, params, points)
+    return values[:, 0], grad[:, 0]
 
 
-def evaluate_potential_gradient(model: Model, params: np.ndarray, points: np.ndarray):
-    """The learnable term's potential N (k,) [canonical] at ``points`` (k, 3) and its
-    gradient (k, n_learn) with respect to the learnable parameters ``params[:n_learn]``."""
-    return _evaluate_with_gradient(potential_gradient_function(model), model, params, points)
+def evaluate_field_parameter_gradient(model: Model, params: np.ndarray, points: np.ndarray):
+    """The learnable term's potential and spatial gradient (N, dN/dx, dN/dy, dN/dz) (k, 4)
+    [canonical] at ``points`` (k, 3), and their gradients (k, 4, n_learn) with respect to the
+    learnable parameters ``params[:n_learn]``."""
+    function = field_parameter_gradient_function(model)
+    return _evaluate_with_gradient(function, model, params, points, n_values=4)
 
 
 def hamiltonian_values(model: Model, states: np.ndarray, params=None, time: float = 0.0):

@@ -7,12 +7,13 @@ network (and SH of one degree, as a control) on five rungs, each one step closer
 problem; the first large jump between rungs names what limits the deep-region error:
 
 - (a) ``oracle-deep``: the learnable term fitted directly to the true perturbing potential
-  (minus the known part) at surface-following points inside R_B, at altitudes other than the
-  evaluation set's (:class:`hamgrav.core.field_problem.FieldProblem`, the same LM): the
-  representation's capacity floor;
+  and its acceleration (minus the known part's) at surface-following points inside R_B, at
+  altitudes other than the evaluation set's (:class:`hamgrav.core.field_problem.FieldProblem`,
+  the same LM): the representation's capacity floor;
 - (b) ``oracle-arcs``: the same fit at the positions the arcs sample (all at r >= 0.96 R_B),
   with the harmonic penalty at each weight of ``oracle_harmonic`` (the network only): the
-  extrapolation floor, the truth's values standing in for what tracking can tell;
+  extrapolation floor, the true field and its gradient there standing in for what tracking
+  can tell of them;
 - (a+b) ``oracle-both``: the fit on the points of (a) and (b) together: whether the
   representation can hold the deep and the exterior field at once (what assimilating
   descents asks of it);
@@ -38,6 +39,7 @@ from matplotlib.figure import Figure
 
 from ..core.field_problem import FieldProblem
 from ..core.fields import central_potential, perturbing_potential
+from ..core.mascons import mascon_acceleration
 from ..core.model import evaluate_field
 from ..errors import InputError
 from ..fit.continual import ContinualFit
@@ -103,27 +105,30 @@ class DeepLadderConfig(DeepCampaignConfig):
 
 def oracle_fit(estimator: GravityEstimator, arcs, points, truth, *, harmonic: float = 0.0):
     """(model, params, info): the estimator's learnable term (each ensemble member on its own,
-    from the estimator's initialisation) fitted by LM to the truth's perturbing potential minus
-    the model's known part at ``points`` (k, 3), canonical; ``harmonic`` > 0 adds the
+    from the estimator's initialisation) fitted by LM to the truth's perturbing potential and
+    its acceleration, minus the model's known part, at ``points`` (k, 3), canonical (half the
+    squared relative error of each in the cost); ``harmonic`` > 0 adds the
     network's harmonic penalty at that weight (collocation points as the tracking fit's).
-    ``info``: ``on_points``, the ensemble's relative error on the fitted points, and each
+    ``info``: ``on_points``, the ensemble's relative potential error on the fitted points, and each
     member's solver summary."""
     model, _ = estimator.build_model(arcs)
-    known, _ = evaluate_field(model, np.zeros(model.n_learn), points, which="known")
+    known, known_acc = evaluate_field(model, np.zeros(model.n_learn), points, which="known")
     target = perturbing_potential(truth.mascons, points) - (known - central_potential(points))
+    # the known part's acceleration holds the central term's: the difference is the rest
+    target_acc = mascon_acceleration(truth.mascons, points) - known_acc
     member = model.member()
     penalty = None
     if harmonic:
         with_penalty = GravityEstimator(**{**estimator.get_params(), "harmonic": harmonic})
         collocation = with_penalty.harmonic_penalty(member, arcs)
         penalty = HarmonicPenalty(member, collocation.points, harmonic)
-    problem = FieldProblem(member, points, target, regulariser=penalty)
+    problem = FieldProblem(member, points, target, target_acc, regulariser=penalty)
     solver = replace(estimator.make_solver(), max_iter=ORACLE_ITERATIONS, patience=None)
     blocks = model.learnable.split_members(estimator.initial_params(model, arcs))
     results = [solver.solve(problem, block) for block in blocks]
     params = np.concatenate([r.params for r in results])
     ensemble, _ = evaluate_field(model, params, points)
-    on_points = np.sqrt(np.sum((ensemble - target) ** 2) / np.sum(target**2))
+    on_points = np.sqrt(np.sum((ensemble - target) ** 2) / np.sum(target**2))  # potential
     return (
         model,
         params,
