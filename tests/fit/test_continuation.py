@@ -10,6 +10,12 @@ from hamgrav.errors import InputError
 from hamgrav.fit.estimator import GravityEstimator
 
 
+def _scaled(mesh, factor):
+    out = mesh.copy()
+    out.apply_scale(factor)
+    return out
+
+
 def _sh(body, **kw):
     return GravityEstimator("sh", degree=2, validation_fraction=0.0, body=body, **kw)
 
@@ -64,6 +70,13 @@ def test_the_checkpoint_identity_tells_fits_apart(first, small_arcs, synthetic_t
         est.checkpoint_identity(small_arcs.subset(np.arange(6)), est.make_solver()),
         est.checkpoint_identity(small_arcs, est.make_solver(), init=first),
     ]
+    # another shape given for the same arcs (same GM and spin: only warned about)
+    with pytest.warns(UserWarning, match="another shape"):
+        others.append(
+            _sh(replace(body, mesh_m=_scaled(body.mesh_m, 1.01))).checkpoint_identity(
+                small_arcs, est.make_solver()
+            )
+        )
     assert all(other != base for other in others)
     import json
 

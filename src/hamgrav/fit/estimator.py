@@ -640,11 +640,13 @@ class GravityEstimator:
     def checkpoint_identity(
         self, arcs: Arcs, solver: Solver, init: FittedModel | None = None
     ) -> dict:
-        """What identifies a fit for its checkpoint (plain data): the arcs' digest, this
-        estimator's plain-data hyperparameters (terms and solvers by their descriptions;
-        the body, mappers, clients and metrics left out: they do not change the numbers or
-        are checked elsewhere), the ``solver`` that runs and the parameters a continued fit
-        starts from. A checkpoint written under another identity is not resumed."""
+        """What identifies a fit for its checkpoint (plain data): the arcs' digest, the body
+        the fit uses (its mesh digest and frame origin: a shape given with ``--body`` other
+        than the arcs' moves the harmonic penalty's points and the shape prior; GM and spin
+        are the arcs'), this estimator's plain-data hyperparameters (terms and solvers by
+        their descriptions; mappers, clients and metrics left out: they do not change the
+        numbers), the ``solver`` that runs and the parameters a continued fit starts from. A
+        checkpoint written under another identity is not resumed."""
         skip = {"body", "mapper", "client", "kaula_metric", "trajectory_values"}
         settings = {}
         for name, value in self.get_params().items():
@@ -660,8 +662,10 @@ class GravityEstimator:
         if self.trajectory_values is not None:
             values = np.ascontiguousarray(self.trajectory_values, np.float64)
             settings["trajectory_values_sha256"] = hashlib.sha256(values.tobytes()).hexdigest()
+        body = self.body_of(arcs)
         return {
             "arcs_sha256": arcs.digest(),
+            "body": {"mesh_sha256": body.mesh_sha256, "origin_m": list(body.origin_m)},
             "settings": settings,
             "init_params_sha256": None if init is None else init.params_sha256(),
             "solver": solver.name,
