@@ -80,6 +80,12 @@ class DeepLadderConfig(DeepCampaignConfig):
         above=0,
         nonempty=True,
     )
+    oracle_points: int = option(
+        4000,
+        "Points rung (a) is fitted on: a seeded draw from the surface-following points "
+        "inside R_B (each adds four rows, the potential and its gradient).",
+        at_least=1,
+    )
     oracle_harmonic: tuple[float, ...] = option(
         (0.0, 1e-5, 1e-4, 1e-3),
         "Harmonic-penalty weights of rung (b)'s network fits (0: none); the data term is half "
@@ -192,6 +198,11 @@ class DeepLadderExperiment(Experiment):
                 f"{config.body}'s surface lies inside its Brillouin sphere: give lower "
                 f"{label('oracle_altitudes_m')}"
             )
+        if len(deep_points) > config.oracle_points:
+            draw = np.random.default_rng(ctx.seed).choice(
+                len(deep_points), config.oracle_points, replace=False
+            )
+            deep_points = deep_points[np.sort(draw)]
         arc_points = arcs.true_states[..., :3].reshape(-1, 3)
         rows = {
             "network": network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic),
@@ -291,8 +302,9 @@ def ladder_readme(report: dict) -> list[str]:
         f"{first['n_arcs']} arcs of {first['body']} and {first['n_descents']} tracked "
         f"descents per repetition, the deep experiment's campaign (samples "
         f"{first['radius_rb']['min']:.2f}-{first['radius_rb']['max']:.2f} R_B). Rung (a) is "
-        f"fitted on {first['oracle_points']['deep']} surface-following points inside R_B at "
-        f"{', '.join(f'{h:g}' for h in config['oracle_altitudes_m'])} m, rung (b) on the "
+        f"fitted on {first['oracle_points']['deep']} surface-following points inside R_B "
+        f"(drawn from those at {', '.join(f'{h:g}' for h in config['oracle_altitudes_m'])} "
+        "m), rung (b) on the "
         f"{first['oracle_points']['arcs']} true sample positions of the arcs. Errors are "
         "relative errors of the perturbing potential (1 = no correction): `on its points` an "
         "oracle fit's error on the points it was fitted on, `exterior` the mean "
