@@ -67,6 +67,8 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
         oracle_harmonic=(0.0, 1e-4),
         shells_rb=(1.3,),
         deep_bins_rb=(0.5, 0.95),
+        adam_rungs=("tracking",),
+        adam_steps=3,
     )
     report, _ = run_experiment("deep-ladder", config, seed=2, output=tmp_path, verbose=False)
     ladder = report["repetitions"][0]["ladder"]
@@ -74,7 +76,7 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
         "network/oracle-arcs:0",
         "network/oracle-arcs:0.0001",
     }
-    expected |= {f"sh2/{r}" for r in RUNGS}
+    expected |= {f"sh2/{r}" for r in RUNGS} | {"network-adam/tracking"}
     assert all("on_points" in ladder[k] for k in expected if "oracle" in k)
     assert set(ladder) == expected
     assert all(np.isfinite(v["exterior"]) for v in ladder.values())
@@ -98,3 +100,5 @@ def test_oracle_altitudes_above_the_brillouin_sphere_are_refused(tmp_path):
 def test_unknown_rung_refused():
     with pytest.raises(InputError, match="unknown rung"):
         DeepLadderConfig.from_dict({"rungs": ["oracle-deep", "oracle-everything"]})
+    with pytest.raises(InputError, match="oracle-deep is not a tracking rung"):
+        DeepLadderConfig.from_dict({"adam_rungs": ["oracle-deep"]})
