@@ -116,3 +116,21 @@ def test_bad_samples_are_refused():
         FieldProblem(NET, np.ones((3, 3)), np.zeros(3))
     with pytest.raises(ValueError, match="learnable"):
         FieldProblem(Model((PointMass(),), None), np.ones((3, 3)), np.ones(3))
+
+
+def test_groups_weigh_their_relative_errors_alike():
+    """Two groups of points, one with a field 100 times the other's and four times the
+    points: with groups, J is half the sum of each group's squared relative error."""
+    theta = NET.learnable.initial_params(1)
+    near, far = _points(40, 6, 1.1, 1.2), _points(10, 7, 3.0, 3.5)
+    points = np.concatenate([near, far])
+    values = np.concatenate([np.full(40, 1.0), np.full(10, 0.01)])
+    problem = FieldProblem(NET, points, values, groups=np.repeat([0, 1], [40, 10]))
+    v, _ = evaluate_field(NET, theta, points)
+    rel = [
+        np.sum((values[g] - v[g]) ** 2) / np.sum(values[g] ** 2)
+        for g in (slice(0, 40), slice(40, 50))
+    ]
+    assert problem.cost(theta) == pytest.approx(0.5 * sum(rel), rel=1e-12)
+    with pytest.raises(ValueError, match="one label per point"):
+        FieldProblem(NET, points, values, groups=np.zeros(3))

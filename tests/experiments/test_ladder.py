@@ -68,6 +68,7 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
         shells_rb=(1.3,),
         deep_bins_rb=(0.5, 0.95),
         adam_rungs=("tracking",),
+        oracle_balance=True,
         adam_steps=3,
     )
     report, _ = run_experiment("deep-ladder", config, seed=2, output=tmp_path, verbose=False)

@@ -38,6 +38,9 @@ class FieldProblem(LeastSquaresProblem):
         scale: s_V > 0; default 1 / (rms(V) sqrt(k)): the potential's part of J is half the
             squared relative error of the fit over the points.
         acceleration_scale: s_a > 0; default 1 / (rms(|a|) sqrt(k)), likewise.
+        groups: optional (k,) labels: the default scales are then each group's own (rms and
+            count over its points), so that every group's relative errors weigh the same in
+            J however large its field and however many its points.
         regulariser: optional :class:`~hamgrav.core.problem.Regulariser` of the learnable
             parameters (e.g. the harmonic penalty), added to the training objective.
     """
@@ -51,6 +54,7 @@ class FieldProblem(LeastSquaresProblem):
         *,
         scale: float | None = None,
         acceleration_scale: float | None = None,
+        groups: np.ndarray | None = None,
         regulariser: Regulariser | None = None,
     ):
         if model.learnable is None or model.n_learn == 0:
@@ -63,21 +67,25 @@ class FieldProblem(LeastSquaresProblem):
             )
         if not len(values) or not (np.isfinite(points).all() and np.isfinite(values).all()):
             raise ValueError("points and values must be finite and not empty")
+        labels = np.zeros(len(values), int) if groups is None else np.asarray(groups)
+        if labels.shape != values.shape:
+            raise ValueError(f"groups must have one label per point, got {labels.shape}")
         targets = values[:, None]
-        scales = [_default_scale(values, scale, "values")]
+        columns = [_scales(values, labels, scale, "values")]
         if accelerations is not None:
             accelerations = np.array(accelerations, dtype=float)
             if accelerations.shape != points.shape or not np.isfinite(accelerations).all():
                 raise ValueError(f"accelerations must be finite and {points.shape}")
             targets = np.column_stack([values, accelerations])
-            s_a = _default_scale(accelerations, acceleration_scale, "accelerations")
-            scales += [s_a] * 3
+            s_a = _scales(accelerations, labels, acceleration_scale, "accelerations")
+            columns += [s_a] * 3
+        scales = np.column_stack(columns)
         targets.flags.writeable = False
         points.flags.writeable = False
         self.model = model
         self.points = points
         self.targets = targets
-        self.scales = np.array(scales)
+        self.scales = scales
         self.regulariser = regulariser
         self.n_params = model.n_learn
         self._fingerprints: dict[bytes, str] = {}
@@ -93,10 +101,11 @@ class FieldProblem(LeastSquaresProblem):
     def _fields(self, theta, idx, gradient: bool):
         n_rows = self.targets.shape[1]
         fields, grad = evaluate_field_parameter_gradient(self.model, theta, self.points[idx])
-        r = self.scales * (self.targets[idx] - fields[:, :n_rows])
+        scales = self.scales[idx]
+        r = scales * (self.targets[idx] - fields[:, :n_rows])
         if not gradient:
             return r, None
-        return r, -self.scales[None, :, None] * grad[:, :n_rows]
+        return r, -scales[:, :, None] * grad[:, :n_rows]
 
     def residuals(self, theta, arc_indices=None) -> np.ndarray:
         """r at the selected points, shape (k,), or (k, 4) with accelerations."""
@@ -116,20 +125,25 @@ class FieldProblem(LeastSquaresProblem):
         if key not in self._fingerprints:
             h = hashlib.sha256(np.ascontiguousarray(self.points[idx]).tobytes())
             h.update(np.ascontiguousarray(self.targets[idx]).tobytes())
-            h.update(self.scales.tobytes())
+            h.update(np.ascontiguousarray(self.scales[idx]).tobytes())
             h.update(json.dumps(self.model.describe(), sort_keys=True, default=repr).encode())
             self._fingerprints[key] = h.hexdigest()
         return self._fingerprints[key]
 
 
-def _default_scale(target: np.ndarray, scale: float | None, what: str) -> float:
-    """1 / (rms of the target's magnitude x sqrt(points)), or the given scale, checked."""
-    if scale is None:
-        magnitude = np.sqrt(np.sum(target.reshape(len(target), -1) ** 2, axis=1))
-        rms = float(np.sqrt(np.mean(magnitude**2)))
+def _scales(target: np.ndarray, labels: np.ndarray, scale: float | None, what: str):
+    """Per point (k,): the given scale, or 1 / (rms of the target's magnitude x sqrt(points))
+    over each point's group; checked."""
+    if scale is not None:
+        if not scale > 0:
+            raise ValueError(f"scale of the {what} must be positive, got {scale}")
+        return np.full(len(target), float(scale))
+    magnitude = np.sqrt(np.sum(target.reshape(len(target), -1) ** 2, axis=1))
+    out = np.empty(len(target))
+    for label in np.unique(labels):
+        mine = labels == label
+        rms = float(np.sqrt(np.mean(magnitude[mine] ** 2)))
         if rms == 0:
             raise ValueError(f"{what} are all zero: give a scale")
-        scale = 1.0 / (rms * np.sqrt(len(target)))
-    if not scale > 0:
-        raise ValueError(f"scale of the {what} must be positive, got {scale}")
-    return float(scale)
+        out[mine] = 1.0 / (rms * np.sqrt(np.count_nonzero(mine)))
+    return out

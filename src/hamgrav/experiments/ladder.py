@@ -16,7 +16,8 @@ problem; the first large jump between rungs names what limits the deep-region er
   can tell of them;
 - (a+b) ``oracle-both``: the fit on the points of (a) and (b) together: whether the
   representation can hold the deep and the exterior field at once (what assimilating
-  descents asks of it);
+  descents asks of it); with ``oracle_balance`` each set's relative errors weigh alike
+  (without, the deep field, tens of times the exterior's, dominates the fit);
 - (c) ``noise-free``: the tracking fit on the arcs with their noise removed (each arc starts
   from its true state);
 - (d) ``tracking``: the real fit (noisy arcs, each started from its first noisy sample), all
@@ -106,6 +107,11 @@ class DeepLadderConfig(DeepCampaignConfig):
         nonempty=True,
     )
 
+    oracle_balance: bool = option(
+        False,
+        "Weigh the two sets of rung (a+b) alike (each set's relative errors); off: one "
+        "normalisation over all points, where the deep field dominates.",
+    )
     adam_rungs: tuple[str, ...] = option(
         (),
         "Tracking rungs also fitted by the paper's protocol (the `network` preset: one "
@@ -130,12 +136,16 @@ class DeepLadderConfig(DeepCampaignConfig):
             )
 
 
-def oracle_fit(estimator: GravityEstimator, arcs, points, truth, *, harmonic: float = 0.0):
+def oracle_fit(
+    estimator: GravityEstimator, arcs, points, truth, *, harmonic: float = 0.0, groups=None
+):
     """(model, params, info): the estimator's learnable term (each ensemble member on its own,
     from the estimator's initialisation) fitted by LM to the truth's perturbing potential and
     its acceleration, minus the model's known part, at ``points`` (k, 3), canonical (half the
     squared relative error of each in the cost); ``harmonic`` > 0 adds the
-    network's harmonic penalty at that weight (collocation points as the tracking fit's).
+    network's harmonic penalty at that weight (collocation points as the tracking fit's);
+    ``groups`` (k,) labels weigh each group's relative errors alike (see
+    :class:`~hamgrav.core.field_problem.FieldProblem`).
     ``info``: ``on_points``, the ensemble's relative potential error on the fitted points, and each
     member's solver summary."""
     model, _ = estimator.build_model(arcs)
@@ -149,7 +159,7 @@ def oracle_fit(estimator: GravityEstimator, arcs, points, truth, *, harmonic: fl
         with_penalty = GravityEstimator(**{**estimator.get_params(), "harmonic": harmonic})
         collocation = with_penalty.harmonic_penalty(member, arcs)
         penalty = HarmonicPenalty(member, collocation.points, harmonic)
-    problem = FieldProblem(member, points, target, target_acc, regulariser=penalty)
+    problem = FieldProblem(member, points, target, target_acc, groups=groups, regulariser=penalty)
     solver = replace(estimator.make_solver(), max_iter=ORACLE_ITERATIONS, patience=None)
     blocks = model.learnable.split_members(estimator.initial_params(model, arcs))
     results = [solver.solve(problem, block) for block in blocks]
@@ -252,6 +262,7 @@ class DeepLadderExperiment(Experiment):
             "oracle-arcs": arc_points,
             "oracle-both": np.concatenate([deep_points, arc_points]),
         }
+        both_groups = np.repeat([0, 1], [len(deep_points), len(arc_points)])
         for row, settings in rows.items():
             wanted = set(config.adam_rungs if row == "network-adam" else config.rungs)
             settings = committed_holdout(settings)
@@ -266,7 +277,11 @@ class DeepLadderExperiment(Experiment):
                 weights = config.oracle_harmonic if network and rung == "oracle-arcs" else (0.0,)
                 for weight in weights:
                     name = f"{rung}:{weight:g}" if len(weights) > 1 else rung
-                    fit = oracle_fit(estimator(), arcs, points, truth, harmonic=weight)
+                    balance = rung == "oracle-both" and config.oracle_balance
+                    groups = both_groups if balance else None
+                    fit = oracle_fit(
+                        estimator(), arcs, points, truth, harmonic=weight, groups=groups
+                    )
                     score(row, name, *fit)
             if "noise-free" in wanted:
                 est = estimator().fit(clean)
