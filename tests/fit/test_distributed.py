@@ -51,6 +51,13 @@ def test_sums_over_chunks_equal_the_in_process_sums(client, small_arcs, syntheti
     c2, g2 = remote.gradient(theta, picked)
     assert c2 == pytest.approx(c0, rel=1e-12)
     np.testing.assert_allclose(g2, g0, rtol=1e-10, atol=1e-12 * np.abs(g0).max())
+    # the workers' problems take the client's gradient method
+    for method in ("adjoint", "forward"):
+        here = ArcProblem(model, small_arcs, gradient_method=method).gradient(theta, picked)[1]
+        there = DistributedArcProblem(
+            model, small_arcs, client=client, chunks=3, gradient_method=method
+        ).gradient(theta, picked)[1]
+        np.testing.assert_allclose(there, here, rtol=1e-13, atol=1e-15 * np.abs(here).max())
 
 
 @pytest.mark.filterwarnings("ignore:the fit looks overfit")

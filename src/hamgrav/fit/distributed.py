@@ -120,6 +120,7 @@ class DistributedArcProblem(ArcProblem):
             "tol": self.tol,
             "sensitivity_tol": self.sensitivity_tol,
             "max_steps": self.max_steps,
+            "gradient_method": self.gradient_method,
         }
         description = model.describe()
         self._chunks = [
