@@ -98,6 +98,12 @@ def test_oracle_altitudes_above_the_brillouin_sphere_are_refused(tmp_path):
         run_experiment("deep-ladder", config, output=tmp_path, verbose=False)
 
 
+def test_oracle_fit_refuses_a_first_order_solver(synthetic_truth, small_arcs):
+    est = GravityEstimator(term="network", hidden=(4,), solver="adam", body=synthetic_truth.body)
+    with pytest.raises(InputError, match="runs Levenberg-Marquardt"):
+        oracle_fit(est, small_arcs, np.ones((3, 3)), synthetic_truth)
+
+
 def test_unknown_rung_refused():
     with pytest.raises(InputError, match="unknown rung"):
         DeepLadderConfig.from_dict({"rungs": ["oracle-deep", "oracle-everything"]})

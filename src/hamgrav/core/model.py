@@ -363,7 +363,10 @@ def _with_parameter_gradient(model: Model, name: str, of):
             raise ValueError("the model has no learnable parameters")
         values = of(model.learnable.potential(0))
         values = values if isinstance(values, list) else [values]
-        grad = hy.diff_tensors(values, diff_args=hy.diff_args.params, diff_order=1).jacobian
+        # every learnable parameter by name: diff_args.params would leave out those the
+        # values do not contain, and shift the columns after them
+        params = [hy.par[j] for j in range(model.n_learn)]
+        grad = hy.diff_tensors(values, diff_args=params, diff_order=1).jacobian
         rows = [grad[i, j] for i in range(len(values)) for j in range(model.n_learn)]
         return hy.cfunc([*values, *rows], vars=list(POSITION), compact_mode=True)
 
@@ -375,7 +378,8 @@ def _evaluate_with_gradient(function, model: Model, params, points, n_values: in
     :func:`_with_parameter_gradient` at ``points`` (k, 3)."""
     points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)).T)
     n, k = model.n_learn, points.shape[1]
-    # a cfunc counts parameters up to the last one its outputs use (none: linear in them)
+    # a cfunc counts parameters up to the last one its outputs use (none when no output
+    # contains one: an SH gradient, linear in them)
     used = function.nparams
     if used:
         theta = np.asarray(params, float)[:used, None]

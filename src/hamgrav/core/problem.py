@@ -105,7 +105,9 @@ class LeastSquaresProblem:
 
     A subclass sets ``model``, ``n_params`` and ``regulariser`` and gives :meth:`_indices`
     (all units for None), :meth:`residuals`, :meth:`design` ((r, A) of the selected units)
-    and :meth:`fingerprint`; the solvers use only the methods defined here."""
+    and :meth:`fingerprint`. Levenberg-Marquardt uses only the methods defined here; Adam
+    also reads the problem's ``arcs`` (their count and samples per arc, for its batches), so
+    it runs on an :class:`ArcProblem` only."""
 
     model: Model
     n_params: int

@@ -227,6 +227,9 @@ ADJOINT_TOLERANCE = 1e-4
 #: state's (three samples 0.04 time units apart: miss 4e-11, gradient 7e-9 relative): at
 #: 1e-12 those arcs all run again (gradient within 2e-13), the 40-sample arcs none.
 ADJOINT_ANCHOR_MISS = 1e-12
+#: Relative miss at the tight tolerance above which an arc's backward pass has failed (it
+#: did not integrate back to its first sample): the arc is reported, not summed.
+ADJOINT_FAILED_MISS = 1e-8
 
 
 def adjoint_gradient(
@@ -267,15 +270,19 @@ def adjoint_gradient(
     # dJ/dx_k = -W^T W (y_k - x_k), as rows
     kicks = -(whitened if whitening is None else whitened @ whitening)
     n_par = model.n_system_params
-    gradient = np.zeros(n_par)
     per_arc = np.zeros((n, n_par - n_shared))
     miss = np.full(n, np.nan)
     ok = forward.ok.copy()
+    exceeded = forward.exceeded_steps.copy()
     retried = np.zeros(n, bool)
+    # each chunk's sum of the shared gradient, added up in a fixed order at the end: the
+    # threads finish in any order, and a sum must not depend on it
+    partial: dict[tuple[int, int], np.ndarray] = {}
     lock = threading.Lock()
 
-    def backward(ta, sel: np.ndarray) -> np.ndarray | None:
-        """The lanes' final (x, lam, mu) (n_state, len(sel)), or None if a lane failed."""
+    def backward(ta, sel: np.ndarray):
+        """(the lanes' final (x, lam, mu) (n_state, len(sel)), which lanes ended well,
+        whether the step limit stopped them)."""
         width = ta.batch_size
         pad = np.concatenate([sel, np.repeat(sel[-1:], width - len(sel))])
         ta.set_time(times[pad, -1].copy())
@@ -285,34 +292,40 @@ def adjoint_gradient(
         st[6:12] = kicks[pad, -1].T
         ta.pars[:] = runtime_params[:, pad]
         limit = _StepLimit(None if max_steps is None else max_steps * n_m)
+        good = np.ones(len(sel), bool)
         for k in range(n_m - 2, -1, -1):
             ta.propagate_until(times[pad, k].copy(), callback=limit)
             if limit.exceeded:
-                return None
+                return None, np.zeros(len(sel), bool), True
+            reached = [res[0] == hy.taylor_outcome.time_limit for res in ta.propagate_res]
+            good &= np.asarray(reached[: len(sel)])
             if k:
                 st[6:12] += kicks[pad, k].T
         out = st[:, : len(sel)].copy()
-        return out if np.all(np.isfinite(out)) else None
+        return out, good & np.all(np.isfinite(out), axis=0), False
 
-    def accumulate(sel: np.ndarray, out: np.ndarray | None, final: bool) -> bool:
-        """Add the lanes' gradients; False when their backward pass must run again."""
-        if out is None:
-            if final:
-                ok[sel] = False
-            return final
-        start = states0[sel]
-        lane_miss = np.linalg.norm(out[:6].T - start, axis=1) / np.linalg.norm(start, axis=1)
-        if not final and np.any(lane_miss > ADJOINT_ANCHOR_MISS):
+    def accumulate(key: tuple[int, int], sel: np.ndarray, final: bool, run) -> bool:
+        """Keep the lanes' gradients; False when their backward pass must run again."""
+        out, good, stopped = run
+        if out is not None:
+            start = states0[sel]
+            lane_miss = np.linalg.norm(out[:6].T - start, axis=1) / np.linalg.norm(start, axis=1)
+            # a lane far off its anchor at the tight tolerance did not integrate back
+            good &= lane_miss <= (ADJOINT_FAILED_MISS if final else ADJOINT_ANCHOR_MISS)
+        if not final and not good.all():
             return False
         with lock:
-            miss[sel] = lane_miss
-            gradient[:n_shared] += out[12 : 12 + n_shared].sum(axis=1)
-            per_arc[sel] = out[12 + n_shared :].T
+            ok[sel] &= good
+            exceeded[sel] |= stopped
+            if out is not None:
+                miss[sel] = lane_miss
+                per_arc[sel] = out[12 + n_shared :].T
+                partial[key] = out[12 : 12 + n_shared, good].sum(axis=1)
         return True
 
     pending = np.flatnonzero(forward.ok)
     adjoint_tol = ADJOINT_TOLERANCE if adjoint_tol is None else adjoint_tol
-    passes = (adjoint_tol, tol) if adjoint_tol > tol else (tol,)
+    passes = (adjoint_tol, tol) if adjoint_tol > tol else (adjoint_tol,)
     for number, adj_tol in enumerate(passes):
         final = number == len(passes) - 1
         compiled = compiled_adjoint(model, adj_tol)
@@ -322,20 +335,32 @@ def adjoint_gradient(
         if chunks:
             n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(chunks)))
 
-            def work(ta, worker, chunks=chunks, final=final, n_threads=n_threads, retry=retry):
+            def work(
+                ta,
+                worker,
+                chunks=chunks,
+                final=final,
+                n_threads=n_threads,
+                retry=retry,
+                number=number,
+            ):
                 for c in range(worker, len(chunks), n_threads):
-                    if not accumulate(chunks[c], backward(ta, chunks[c]), final):
+                    run = backward(ta, chunks[c])
+                    if not accumulate((number, c), chunks[c], final, run):
                         with lock:
                             retry.append(chunks[c])
 
             _over_threads(compiled, n_threads, work)
         if not retry:
             break
-        pending = np.concatenate(retry)
+        pending = np.sort(np.concatenate(retry))
         retried[pending] = True
+    gradient = np.zeros(n_par)
+    for key in sorted(partial):
+        gradient[:n_shared] += partial[key]
     gradient[n_shared:] = per_arc[ok].sum(axis=0)
     costs[~ok] = np.nan
-    return AdjointGradient(costs, gradient, per_arc, ok, forward.exceeded_steps, miss, retried)
+    return AdjointGradient(costs, gradient, per_arc, ok, exceeded, miss, retried)
 
 
 def propagate_scalar(

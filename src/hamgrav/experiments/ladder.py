@@ -50,6 +50,7 @@ from ..errors import InputError
 from ..fit.continual import ContinualFit
 from ..fit.estimator import GravityEstimator, preset
 from ..fit.harmonic import HarmonicPenalty
+from ..fit.lm import LevenbergMarquardt
 from ..sim.descent import DescentConfig, tracked_descents
 from .common import committed_holdout, errors_of, network_best, sets_for, simulate
 from .config import label, option
@@ -148,6 +149,11 @@ def oracle_fit(
     :class:`~hamgrav.core.field_problem.FieldProblem`).
     ``info``: ``on_points``, the ensemble's relative potential error on the fitted points, and each
     member's solver summary."""
+    solver = estimator.make_solver()
+    if not isinstance(solver, LevenbergMarquardt):
+        raise InputError(
+            "an oracle fit runs Levenberg-Marquardt: give an estimator whose solver is LM"
+        )
     model, _ = estimator.build_model(arcs)
     known, known_acc = evaluate_field(model, np.zeros(model.n_learn), points, which="known")
     target = perturbing_potential(truth.mascons, points) - (known - central_potential(points))
@@ -160,7 +166,7 @@ def oracle_fit(
         collocation = with_penalty.harmonic_penalty(member, arcs)
         penalty = HarmonicPenalty(member, collocation.points, harmonic)
     problem = FieldProblem(member, points, target, target_acc, groups=groups, regulariser=penalty)
-    solver = replace(estimator.make_solver(), max_iter=ORACLE_ITERATIONS, patience=None)
+    solver = replace(solver, max_iter=ORACLE_ITERATIONS, patience=None)
     blocks = model.learnable.split_members(estimator.initial_params(model, arcs))
     results = [solver.solve(problem, block) for block in blocks]
     params = np.concatenate([r.params for r in results])
