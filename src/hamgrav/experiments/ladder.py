@@ -204,8 +204,8 @@ class DeepLadderExperiment(Experiment):
     figure_captions = {
         "ladder.png": "relative error of the perturbing potential against r / R_B for each "
         "rung (median over the repetitions): the deep set's radial bins inside R_B, then the "
-        "exterior shells; left the network, right the SH control (log scale; 1 = no "
-        "correction)",
+        "exterior shells; one panel per model: network-best, the SH control, and the paper's "
+        "Adam protocol when run (log scale; 1 = no correction)",
     }
 
     def run(self, config: DeepLadderConfig, ctx: RunContext) -> RunOutput:
