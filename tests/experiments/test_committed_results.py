@@ -19,7 +19,8 @@ REPORTS = sorted(RESULTS.glob("*/results.json"))
 #: runs made before the option existed (the truth's head-tail contrast was 2; descents were
 #: in the centre-of-mass frame, with no shape prior and no comparison run; swarm networks had
 #: one harmonic weight, no scan, and a scan kept its lowest held-out cost on one split; SH
-#: rows were not chosen by cross-validation).
+#: rows were not chosen by cross-validation; the deep ladder's combined oracle rung was
+#: normalised as one set and it ran no Adam row).
 BEFORE_THE_OPTION = {
     "contrast": 2.0,
     "frame": "centre-of-mass",
@@ -29,6 +30,9 @@ BEFORE_THE_OPTION = {
     "harmonic_scan_rule": "lowest",
     "harmonic_scan_folds": 0,
     "cv_sh": False,
+    "oracle_balance": False,
+    "adam_rungs": [],
+    "adam_steps": 1500,
 }
 
 
