@@ -19,7 +19,7 @@ import json
 
 import numpy as np
 
-from .model import Model, evaluate_field_parameter_gradient
+from .model import Model, evaluate_field, evaluate_field_parameter_gradient
 from .problem import LeastSquaresProblem, Regulariser
 
 __all__ = ["FieldProblem"]
@@ -100,7 +100,12 @@ class FieldProblem(LeastSquaresProblem):
 
     def _fields(self, theta, idx, gradient: bool):
         n_rows = self.targets.shape[1]
-        fields, grad = evaluate_field_parameter_gradient(self.model, theta, self.points[idx])
+        points = self.points[idx]
+        if gradient:
+            fields, grad = evaluate_field_parameter_gradient(self.model, theta, points)
+        else:  # costs of trial steps: the field alone, not its P parameter gradients
+            potential, acceleration = evaluate_field(self.model, theta, points)
+            fields = np.column_stack([potential, acceleration])
         scales = self.scales[idx]
         r = scales * (self.targets[idx] - fields[:, :n_rows])
         if not gradient:
