@@ -1,6 +1,7 @@
 """The adjoint gradient against the forward sensitivities' (the independent reference), on
 the models and settings a first-order fit meets."""
 
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -18,10 +19,18 @@ from hamgrav.core.terms import (
 from hamgrav.errors import PropagationError
 
 
+def _adjoint(model, arcs, theta, **kwargs):
+    """adjoint_gradient of ``arcs`` started at their first samples, the same ``theta`` for all."""
+    rp = np.repeat(theta[:, None], arcs.n_arcs, axis=1)
+    return adjoint_gradient(
+        model, arcs.states[:, 0], arcs.times, arcs.states, rp, n_shared=model.n_learn, **kwargs
+    )
+
+
 def _agree(problem: ArcProblem, theta, rel=1e-9):
     cost, grad = problem.gradient(theta)
-    reference = ArcProblem.__new__(ArcProblem)
-    reference.__dict__.update(problem.__dict__, gradient_method="forward")
+    reference = copy.copy(problem)  # the same arcs and settings
+    reference.gradient_method = "forward"
     ref_cost, ref_grad = reference.gradient(theta)
     assert cost == pytest.approx(ref_cost, rel=1e-12)
     assert np.abs(grad - ref_grad).max() <= rel * np.abs(ref_grad).max()
@@ -76,16 +85,7 @@ def test_sparse_samples_are_rerun_until_accurate(small_arcs, network):
         true_states=small_arcs.true_states[:, keep],
     )
     _agree(ArcProblem(model, sparse), theta)
-    rp = np.repeat(theta[:, None], sparse.n_arcs, axis=1)
-    loose = adjoint_gradient(
-        model,
-        sparse.states[:, 0],
-        sparse.times,
-        sparse.states,
-        rp,
-        n_shared=model.n_learn,
-        adjoint_tol=1e-2,
-    )
+    loose = _adjoint(model, sparse, theta, adjoint_tol=1e-2)
     assert loose.retried.any()
     ref = ArcProblem(model, sparse, gradient_method="forward").gradient(theta)[1]
     assert np.abs(loose.gradient - ref).max() <= 1e-9 * np.abs(ref).max()
@@ -98,19 +98,7 @@ def test_dense_arcs_are_not_rerun_and_sums_do_not_depend_on_threads(small_arcs, 
     depends on it; three or more batches added in the order the threads end would not)."""
     model, theta = network
     arcs = small_arcs.subset(np.tile(np.arange(small_arcs.n_arcs), 4))
-    rp = np.repeat(theta[:, None], arcs.n_arcs, axis=1)
-    runs = [
-        adjoint_gradient(
-            model,
-            arcs.states[:, 0],
-            arcs.times,
-            arcs.states,
-            rp,
-            n_shared=model.n_learn,
-            threads=2,
-        )
-        for _ in range(12)
-    ]
+    runs = [_adjoint(model, arcs, theta, threads=2) for _ in range(12)]
     assert not runs[0].retried.any() and np.nanmax(runs[0].anchor_miss) < 1e-12
     assert all(np.array_equal(r.gradient, runs[0].gradient) for r in runs[1:])
 
@@ -121,15 +109,7 @@ def test_an_arc_whose_backward_pass_fails_is_reported(small_arcs, network, monke
     model, theta = network
     monkeypatch.setattr(propagation, "ADJOINT_ANCHOR_MISS", 0.0)
     monkeypatch.setattr(propagation, "ADJOINT_FAILED_MISS", 0.0)
-    rp = np.repeat(theta[:, None], small_arcs.n_arcs, axis=1)
-    run = adjoint_gradient(
-        model,
-        small_arcs.states[:, 0],
-        small_arcs.times,
-        small_arcs.states,
-        rp,
-        n_shared=model.n_learn,
-    )
+    run = _adjoint(model, small_arcs, theta)
     assert run.retried.all() and not run.ok.any() and np.isnan(run.costs).all()
     with pytest.raises(PropagationError, match="failed in the gradient's propagation"):
         ArcProblem(model, small_arcs).gradient(theta)

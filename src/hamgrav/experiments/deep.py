@@ -100,6 +100,7 @@ __all__ = [
     "sample_radii",
     "evaluate",
     "deep_bins",
+    "campaign_descents",
     "join_arcs",
     "d_optimal_campaign",
 ]
@@ -363,6 +364,15 @@ def _maps(fitted: dict, truth: Truth, config: DeepExperimentConfig) -> dict:
     }
 
 
+def campaign_descents(truth: Truth, config: DeepCampaignConfig, seed: int) -> Arcs:
+    """The campaign's ``descents`` deployment descents, tracked with its orbital arcs'
+    samples and noise over ``descent_span`` (:func:`hamgrav.sim.descent.tracked_descents`)."""
+    tracking = config.campaign(seed).tracking
+    return tracked_descents(
+        truth, config.descents, DescentConfig(), tracking, seed=seed, span=config.descent_span
+    )
+
+
 def join_arcs(first: Arcs, second: Arcs) -> Arcs:
     """``first``'s arcs followed by ``second``'s (same body, units and samples per arc); the
     second's trajectories are numbered after the first's. Per-trajectory tables are joined
@@ -586,14 +596,7 @@ class DeepExperiment(Experiment):
         lap("simulate")
         all_arcs, descent_idx, descents = arcs, None, None
         if config.descents:
-            desc = tracked_descents(
-                truth,
-                config.descents,
-                DescentConfig(),
-                tracking,
-                seed=ctx.seed,
-                span=config.descent_span,
-            )
+            desc = campaign_descents(truth, config, ctx.seed)
             all_arcs = join_arcs(arcs, desc)
             descent_idx = np.arange(arcs.n_arcs, all_arcs.n_arcs)
             descents = _descent_record(desc, truth)

@@ -51,10 +51,17 @@ from ..fit.continual import ContinualFit
 from ..fit.estimator import GravityEstimator, preset
 from ..fit.harmonic import HarmonicPenalty
 from ..fit.lm import LevenbergMarquardt
-from ..sim.descent import DescentConfig, tracked_descents
 from .common import committed_holdout, errors_of, network_best, sets_for, simulate
 from .config import label, option
-from .deep import DeepCampaignConfig, _bin_summary, _value, deep_bins, join_arcs, sample_radii
+from .deep import (
+    DeepCampaignConfig,
+    _bin_summary,
+    _value,
+    campaign_descents,
+    deep_bins,
+    join_arcs,
+    sample_radii,
+)
 from .runner import Experiment, RunContext, RunOutput, format_range, register
 
 __all__ = ["DeepLadderConfig", "DeepLadderExperiment", "RUNGS", "oracle_fit"]
@@ -211,15 +218,7 @@ class DeepLadderExperiment(Experiment):
     def run(self, config: DeepLadderConfig, ctx: RunContext) -> RunOutput:
         start = time.perf_counter()
         truth, arcs = simulate(config, ctx)
-        tracking = config.campaign(ctx.seed).tracking
-        descents = tracked_descents(
-            truth,
-            config.descents,
-            DescentConfig(),
-            tracking,
-            seed=ctx.seed,
-            span=config.descent_span,
-        )
+        descents = campaign_descents(truth, config, ctx.seed)
         all_arcs = join_arcs(arcs, descents)
         orbital = np.arange(arcs.n_arcs)
         clean = replace(arcs, states=arcs.true_states, sigma_r_m=0.0, sigma_v_m_s=0.0)
