@@ -21,6 +21,8 @@ from matplotlib.figure import Figure
 from ..core.fields import MAX_SHELL_RB, perturbing_potential
 from ..core.model import evaluate_field
 from ..fit.estimator import truth_shell_metric
+from ..report.tables import format_range
+from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     cv_sh_option,
@@ -35,7 +37,6 @@ from .common import (
     simulate,
 )
 from .config import option
-from .runner import Experiment, RunContext, RunOutput, format_range, register
 
 __all__ = ["AnomaliesExperimentConfig", "AnomaliesExperiment", "PAPER_ANOMALIES"]
 
@@ -271,6 +272,3 @@ def anomalies_readme(report: dict) -> list[str]:
         "Wall time per repetition [s]: " + ", ".join(f"{r['wall_s']:.0f}" for r in reps),
     ]
     return lines
-
-
-register(AnomaliesExperiment())

@@ -23,8 +23,8 @@ from ..fit.estimator import (
 from ..sim.campaign import MAX_TRUTH_MASCONS, Campaign, run_campaign
 from ..sim.tracking import MAX_ORBIT_RADIUS_RB, TrackingConfig, orbit_grid
 from ..sizing import fit_bytes
+from .base import RunContext
 from .config import ExperimentConfig, label, largest_parameters, option
-from .runner import RunContext
 
 __all__ = [
     "CampaignConfig",

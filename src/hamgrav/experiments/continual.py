@@ -18,6 +18,7 @@ import numpy as np
 
 from ..fit.continual import fit_continual
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     committed_holdout,
@@ -31,7 +32,6 @@ from .common import (
 )
 from .config import option
 from .continual_report import continual_figure, continual_readme
-from .runner import Experiment, RunContext, RunOutput, register
 
 __all__ = ["ContinualExperimentConfig", "ContinualExperiment"]
 
@@ -148,6 +148,3 @@ class ContinualExperiment(Experiment):
 
     def figures(self, report: dict, artefacts: dict) -> dict:
         return {"continual.png": continual_figure(report)}
-
-
-register(ContinualExperiment())

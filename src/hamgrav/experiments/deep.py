@@ -62,6 +62,7 @@ from ..fit.continual import ContinualFit
 from ..fit.design import OrbitPlan, choose_from_plans, orbit_plans
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
 from ..sim.descent import DESCENT_SPANS, DescentConfig, tracked_descents
+from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     campaign_artefacts,
@@ -87,7 +88,6 @@ from .deep_report import (
     maps_figure,
     orders_figure,
 )
-from .runner import Experiment, RunContext, RunOutput, register
 
 __all__ = [
     "DeepCampaignConfig",
@@ -840,6 +840,3 @@ class DeepExperiment(Experiment):
         ):
             figures["orders.png"] = orders_figure(report)
         return figures
-
-
-register(DeepExperiment())

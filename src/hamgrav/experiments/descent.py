@@ -26,6 +26,7 @@ from ..errors import InputError
 from ..fit.estimator import preset
 from ..report.figures import campaign_figure, miss_cdf_figure
 from ..sim.descent import DescentConfig, descend, miss_statistics, release_states
+from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     campaign_artefacts,
@@ -41,7 +42,6 @@ from .common import (
 )
 from .config import label, option
 from .descent_report import descent_readme
-from .runner import Experiment, RunContext, RunOutput, register
 from .schema import NUMBER, Each, NonEmpty, Optional, validate
 
 __all__ = [
@@ -320,6 +320,3 @@ COMPARISON = {
     "config": {"prior": Optional(str)},
     "repetitions": NonEmpty({"seed": int, "models": Each({"misses_m": [NUMBER], "total": int})}),
 }
-
-
-register(DescentExperiment())

@@ -21,6 +21,8 @@ from matplotlib.figure import Figure
 from ..bodies.interiors import INTERIORS
 from ..core.fields import MAX_SHELL_RB
 from ..errors import InputError
+from ..report.tables import format_range
+from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     errors_of,
@@ -32,7 +34,6 @@ from .common import (
     simulate,
 )
 from .config import label, option
-from .runner import Experiment, RunContext, RunOutput, format_range, register
 
 __all__ = ["InteriorsExperimentConfig", "InteriorsExperiment", "PAPER"]
 
@@ -231,6 +232,3 @@ def residuals_figure(report: dict) -> Figure:
     axes[0].legend()
     fig.tight_layout()
     return fig
-
-
-register(InteriorsExperiment())

@@ -51,6 +51,8 @@ from ..fit.continual import ContinualFit
 from ..fit.estimator import GravityEstimator, preset
 from ..fit.harmonic import HarmonicPenalty
 from ..fit.lm import LevenbergMarquardt
+from ..report.tables import format_range
+from .base import Experiment, RunContext, RunOutput
 from .common import committed_holdout, errors_of, network_best, sets_for, simulate
 from .config import label, option
 from .deep import (
@@ -62,7 +64,6 @@ from .deep import (
     join_arcs,
     sample_radii,
 )
-from .runner import Experiment, RunContext, RunOutput, format_range, register
 
 __all__ = ["DeepLadderConfig", "DeepLadderExperiment", "RUNGS", "oracle_fit"]
 
@@ -403,6 +404,3 @@ def ladder_figure(report: dict) -> Figure:
         ax.legend(fontsize=7)
     fig.tight_layout()
     return fig
-
-
-register(DeepLadderExperiment())

@@ -42,9 +42,10 @@ from ..errors import InputError
 from ..fit.estimator import GravityEstimator, body_for_model, preset
 from ..io.shformats import sh_export, write_icgem
 from ..io.spk import import_spk, write_spk
+from ..report.tables import format_range
 from ..sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
+from .base import Experiment, RunContext, RunOutput
 from .config import ExperimentConfig, label, option
-from .runner import Experiment, RunContext, RunOutput, format_range, register
 
 __all__ = ["OwnBodyConfig", "OwnBodyExperiment", "OWN_BODY_ROWS"]
 
@@ -330,6 +331,3 @@ def own_body_readme(report: dict) -> list[str]:
             + f" ({f['wall_s']:.0f} s)"
         )
     return lines
-
-
-register(OwnBodyExperiment())

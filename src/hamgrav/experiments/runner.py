@@ -16,29 +16,26 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import sys
 import time
-from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
 
 from .. import __version__
 from ..bodies.catalogue import bodies_dir, check_body_name
 from ..errors import InputError
 from ..files import make_folder, written_together
+from ..report.tables import aggregate, format_range, summarise
 from ..report.writer import save_figure, write_json, write_text
+from .base import Experiment, RunContext, RunOutput, _silent
 from .config import ExperimentConfig
+from .registry import experiment_names, get_experiment
 from .schema import REPORT, render_checked, validate
 
 __all__ = [
     "Experiment",
     "RunContext",
     "RunOutput",
-    "register",
     "get_experiment",
     "experiment_names",
     "run_unit",
@@ -52,110 +49,6 @@ __all__ = [
     "dask_client",
     "format_range",
 ]
-
-
-@dataclass(frozen=True, eq=False)
-class RunOutput:
-    """One repetition's output: ``result`` (plain JSON-able data, goes into results.json) and
-    ``artefacts`` (arrays and plain records for figures and files, not written as JSON)."""
-
-    result: dict
-    artefacts: dict = field(default_factory=dict)
-
-
-def _silent(text: str) -> None:
-    """Discard a progress line."""
-
-
-@dataclass(frozen=True, eq=False)
-class RunContext:
-    """Everything a repetition uses besides its config, as plain values: its ``seed``, the
-    body-data folder (``bodies_folder``, None: the default), ``say(text)`` for progress
-    (rounded figures with units) and ``mapper`` for independent work units (Kaula scans,
-    candidate pools): builtin ``map``, or the cluster's when there is one."""
-
-    seed: int
-    bodies_folder: str | None = None
-    say: Callable[[str], None] = _silent
-    mapper: Callable = map
-
-
-class Experiment(ABC):
-    """An experiment of the paper: a config type and a pure function of (config, seed)."""
-
-    #: command name (``hamgrav experiment NAME``)
-    name: str = ""
-    #: one-line description
-    title: str = ""
-    #: the frozen config dataclass
-    config_type: type[ExperimentConfig] = ExperimentConfig
-    #: keys of the single-run result holding {model: {statistic: number}}, aggregated
-    aggregate_keys: tuple[str, ...] = ()
-    #: default output folder
-    default_output: str = ""
-    #: what each figure file shows, in one sentence (README and console)
-    figure_captions: dict[str, str] = {}
-
-    def default_config(self) -> ExperimentConfig:
-        """The config with every default."""
-        return self.config_type()
-
-    @abstractmethod
-    def run(self, config: ExperimentConfig, ctx: RunContext) -> RunOutput:
-        """One repetition of ``config`` (see :class:`RunContext` for ``ctx``)."""
-
-    @abstractmethod
-    def readme(self, report: dict) -> list[str]:
-        """The README body (after the generic header) from results.json's content."""
-
-    def figures(self, report: dict, artefacts: dict) -> dict:
-        """Figures (file name -> matplotlib Figure) from the report and the first
-        repetition's artefacts."""
-        return {}
-
-    def aggregate(self, repetitions: list[dict]) -> dict:
-        """results.json's ``aggregate``: by default :func:`aggregate` over
-        :attr:`aggregate_keys` (experiments with other result shapes override this)."""
-        return aggregate(repetitions, self.aggregate_keys)
-
-
-_REGISTRY: dict[str, Experiment] = {}
-
-
-def register(experiment: Experiment) -> Experiment:
-    """Add ``experiment`` to the registry (by its name)."""
-    _REGISTRY[experiment.name] = experiment
-    return experiment
-
-
-def _register_all() -> None:
-    from . import (  # noqa: F401
-        anomalies,
-        continual,
-        deep,
-        descent,
-        interiors,
-        ladder,
-        own_body,
-        selection,
-        solvers,
-        swarm,
-        uncertainty,
-    )
-
-
-def get_experiment(name: str) -> Experiment:
-    """The registered experiment called ``name``."""
-    _register_all()
-    if name not in _REGISTRY:
-        raise InputError(f"unknown experiment {name!r}; known: {', '.join(experiment_names())}")
-    return _REGISTRY[name]
-
-
-def experiment_names() -> list[str]:
-    """Names of the registered experiments."""
-    _register_all()
-    return sorted(_REGISTRY)
 
 
 def _stderr_say(prefix: str) -> Callable[[str], None]:
@@ -255,49 +148,6 @@ def dask_client(workers: int = 0, scheduler: str | None = None) -> Iterator:
         silence_logs=logging.CRITICAL,
     ) as client:
         yield client
-
-
-def aggregate(repetitions: list[dict], keys: tuple[str, ...]) -> dict:
-    """Per key, model and statistic: median, min, max and count over the repetitions of every
-    numeric (non-boolean) value of ``result[key][model][statistic]``; None values are left out
-    of the statistics (``n`` counts the others)."""
-    out: dict = {}
-    for key in keys:
-        table: dict = {}
-        for rep in repetitions:
-            for model, stats in rep.get(key, {}).items():
-                for stat, value in stats.items():
-                    if isinstance(value, bool) or not isinstance(value, int | float | type(None)):
-                        continue
-                    table.setdefault(model, {}).setdefault(stat, []).append(value)
-        out[key] = {
-            model: {stat: summarise(values) for stat, values in stats.items()}
-            for model, stats in table.items()
-        }
-    return out
-
-
-def summarise(values: list) -> dict:
-    """Median, min, max and count of the finite numbers among ``values`` (None left out)."""
-    present = [float(v) for v in values if v is not None and math.isfinite(v)]
-    if not present:
-        return {"median": None, "min": None, "max": None, "n": 0}
-    return {
-        "median": float(np.median(present)),
-        "min": float(np.min(present)),
-        "max": float(np.max(present)),
-        "n": len(present),
-    }
-
-
-def format_range(summary: dict | None, fmt: str = "{:.1f}") -> str:
-    """``median`` alone for one value, else ``median (min-max)``; "-" when missing."""
-    if not summary or summary.get("median") is None:
-        return "-"
-    med = fmt.format(summary["median"])
-    if summary["n"] <= 1 or summary["min"] == summary["max"]:
-        return med
-    return f"{med} ({fmt.format(summary['min'])}-{fmt.format(summary['max'])})"
 
 
 def run_experiment(

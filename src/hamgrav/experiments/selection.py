@@ -22,9 +22,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..fit.estimator import CV_HARMONIC_WEIGHTS, truth_shell_metric
+from ..report.tables import format_range
+from .base import Experiment, RunContext, RunOutput
 from .common import CampaignConfig, cv_sh_row, errors_of, fit, network_best, sets_for, simulate
 from .config import option
-from .runner import Experiment, RunContext, RunOutput, format_range, register
 
 __all__ = ["SelectionConfig", "SelectionExperiment", "TRUTH_SHELL"]
 
@@ -215,6 +216,3 @@ def selection_readme(report: dict) -> list[str]:
         cells = [", ".join(f"{k} {v:g}" for k, v in rep["chosen"][row].items()) for row in choosing]
         lines.append(f"| {seed} | " + " | ".join(cells) + " |")
     return lines
-
-
-register(SelectionExperiment())

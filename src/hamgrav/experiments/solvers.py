@@ -20,9 +20,9 @@ from ..fit.design import greedy_d_optimal, random_order_logdet, trajectory_infor
 from ..fit.estimator import GravityEstimator
 from ..fit.lm import LevenbergMarquardt
 from ..report.figures import logdet_figure
+from .base import Experiment, RunContext, RunOutput
 from .common import CampaignConfig, committed_holdout, errors_of, fit, sets_for, simulate
 from .config import option
-from .runner import Experiment, RunContext, RunOutput, register
 from .solvers_report import solvers_readme
 
 __all__ = ["SolverExperimentConfig", "SolverExperiment"]
@@ -138,6 +138,3 @@ class SolverExperiment(Experiment):
     def figures(self, report: dict, artefacts: dict) -> dict:
         d = report["repetitions"][0]["d_optimal"]
         return {"d_optimal.png": logdet_figure(d["greedy_logdet"], d["random_logdet"])}
-
-
-register(SolverExperiment())

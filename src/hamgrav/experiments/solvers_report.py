@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .runner import format_range
+from ..report.tables import format_range
 
 __all__ = ["solvers_readme"]
 

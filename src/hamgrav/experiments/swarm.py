@@ -38,8 +38,10 @@ from ..core.fields import MAX_SHELL_RB
 from ..errors import InputError, PropagationError
 from ..fit.estimator import PRESETS, preset
 from ..fit.selection import RULES, choose
+from ..report.tables import format_range, summarise
 from ..sim.particles import SwarmConfig, simulate_swarm, solar_radiation_pressure
 from ..sizing import fit_bytes
+from .base import Experiment, RunContext, RunOutput
 from .common import (
     errors_of,
     fit,
@@ -50,14 +52,6 @@ from .common import (
     sets_for,
 )
 from .config import ExperimentConfig, label, largest_parameters, option
-from .runner import (
-    Experiment,
-    RunContext,
-    RunOutput,
-    format_range,
-    register,
-    summarise,
-)
 
 __all__ = [
     "SwarmExperimentConfig",
@@ -729,6 +723,3 @@ def swarm_readme(report: dict) -> list[str]:
         + ", ".join(f"{r['wall_s']:.0f}" for r in reps),
     ]
     return lines
-
-
-register(SwarmExperiment())

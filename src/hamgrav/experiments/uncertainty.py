@@ -33,6 +33,7 @@ from ..core.uncertainty import potential_gradient
 from ..fit.covariance import RANK_THRESHOLD, calibration, normal_system
 from ..fit.estimator import fitted_harmonic_penalty, noise_sigmas
 from ..sim.tracking import observe
+from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     errors_of,
@@ -44,7 +45,6 @@ from .common import (
     simulate,
 )
 from .config import option
-from .runner import Experiment, RunContext, RunOutput, register
 from .uncertainty_report import calibration_figure, maps_figure, uncertainty_readme
 
 __all__ = ["UncertaintyExperimentConfig", "UncertaintyExperiment"]
@@ -264,6 +264,3 @@ def _member_spread(model, params, points) -> np.ndarray:
         for block in term.split_members(params[: model.n_learn])
     ]
     return np.std(values, axis=0, ddof=1) / np.sqrt(term.members)
-
-
-register(UncertaintyExperiment())
