@@ -79,7 +79,12 @@ from ..core.propagation import state_transition
 from ..core.uncertainty import potential_sigma
 from ..errors import InputError, PropagationError
 from ..units import CanonicalUnits
-from .estimator import noise_whitening, require_noise, validation_split
+from .estimator import (
+    fitted_harmonic_penalty,
+    noise_whitening,
+    require_noise,
+    validation_split,
+)
 from .fitted import FittedModel
 from .kaula import kaula_diagonal
 
@@ -90,6 +95,7 @@ __all__ = [
     "formal_covariance",
     "normal_system",
     "parameter_covariance",
+    "potential_uncertainty",
     "sample_covariance",
     "training_arcs",
     "uncertainty_report",
@@ -415,3 +421,22 @@ def calibration(error: np.ndarray, sigma: np.ndarray) -> dict:
         "within_2_sigma": float(np.mean(error < 2 * sigma)),
         "median_abs_z": float(np.nanmedian(z)),
     }
+
+
+def potential_uncertainty(
+    fitted: FittedModel, arcs: Arcs, body, sets: dict[str, np.ndarray]
+) -> dict:
+    """The formal uncertainty of the potential of ``fitted`` on each named canonical point
+    set (n, 3), as ``hamgrav evaluate --uncertainty`` reports it: ``covariance``
+    (:meth:`ParameterCovariance.describe`) and, per set, :func:`uncertainty_report`'s row
+    (sigma_V [m^2/s^2]; with the arcs' truth, its calibration). C comes from the tracking
+    noise of ``arcs`` (the fit's arcs) through the fit's normal equations, with a network's
+    harmonic penalty rebuilt on ``body`` when the fit had one
+    (:func:`hamgrav.fit.estimator.fitted_harmonic_penalty`), scaled by the a posteriori
+    variance factor. Arcs without a noise level raise :class:`InputError`."""
+    require_noise(arcs, "the formal uncertainty of the potential")
+    penalty = fitted_harmonic_penalty(fitted, arcs, body)
+    covariance = parameter_covariance(fitted, arcs, penalty=penalty)
+    truth = arcs.truth if arcs.has_truth else None
+    report = uncertainty_report(fitted, covariance.scaled(), sets, truth)
+    return {"covariance": covariance.describe(), **report}

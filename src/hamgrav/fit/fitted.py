@@ -6,13 +6,14 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..core.arcs import BodyRecord
 from ..core.model import Model, evaluate_field
-from ..errors import InputError
+from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits
 
 __all__ = ["FittedModel", "FIELD_PARTS", "FRAME_TOLERANCE_M"]
@@ -102,6 +103,49 @@ class FittedModel:
                 f"arcs {source} are in a frame with origin {arcs.body_origin_m} m, {name} in "
                 f"one with origin {self.body_origin_m} m (another campaign); {fix}"
             )
+
+    def recorded_arcs_file(self):
+        """The file of the arcs this model was fitted to, as recorded at the fit (its
+        ``training`` record, else its ``solver`` record; an absolute path when written by
+        :meth:`with_arcs_file`), or None when none is recorded. Returned as stored: a file
+        that lies may record something that is not a path (callers check)."""
+        return self.training.get("arcs_file") or self.solver.get("arcs_file") or None
+
+    def check_truth(
+        self,
+        arcs,
+        source,
+        name: str = "the model",
+        fix: str = "pass the arcs of this model's campaign",
+        record: str | None = None,
+    ) -> None:
+        """Refuse ``arcs`` (read from ``source``) whose truth is not the one this model was
+        fitted against (their :meth:`Arcs.truth_digest` differs from ``training``'s
+        ``truth_sha256``); ``name`` names the model in the message, ``fix`` ends it. A model
+        fitted to arcs without a truth (imported tracking) accepts any truth; a model that
+        records no truth digest (older hamgrav) is compared unchecked, with a
+        :class:`HamgravWarning` naming ``record`` (default ``name``)."""
+        if "truth_sha256" not in self.training:
+            warnings.warn(
+                f"{record or name} does not record the truth it was fitted against "
+                f"(older hamgrav); comparing with the truth of {source} unchecked",
+                HamgravWarning,
+                3,
+            )
+            return
+        truth = self.training["truth_sha256"]
+        if truth is not None and arcs.truth_digest() != truth:
+            raise InputError(
+                f"arcs {source} hold another truth than the one {name} was fitted against "
+                f"(truth digests differ); {fix}"
+            )
+
+    def sh_expansion(self) -> tuple[int, float] | None:
+        """(degree, reference radius [canonical]) when the learned term is an SH expansion
+        of its own (exported exactly at that degree and radius), else None (a network, or
+        no learned term)."""
+        term = self.model.learnable
+        return None if term is None else term.expansion()
 
     def params_sha256(self) -> str:
         """SHA-256 (hex) of the parameter vector's float64 bytes (what a continued fit

@@ -51,7 +51,18 @@ from ..files import atomic_path
 from ..fit.fitted import FittedModel
 from ..units import CanonicalUnits
 
-__all__ = ["SHExport", "sh_export", "write_icgem", "write_shadr", "CHECK_RADII"]
+__all__ = [
+    "SHExport",
+    "sh_export",
+    "model_export",
+    "write_icgem",
+    "write_shadr",
+    "CHECK_RADII",
+    "PROJECTION_DEGREE",
+]
+
+#: SH degree a model that is not an SH expansion (a network) is projected at by default.
+PROJECTION_DEGREE = 8
 
 #: Radii (in reference radii) where the written field is compared with the model.
 CHECK_RADII = (1.0, 1.5)
@@ -191,6 +202,32 @@ def sh_export(
         errors="formal" if has_errors else "no",
         accuracy=accuracy,
         method="exact" if exact else "approximate",
+    )
+
+
+def model_export(
+    fitted: FittedModel,
+    *,
+    degree: int | None = None,
+    body=None,
+    covariance: np.ndarray | None = None,
+) -> SHExport:
+    """:func:`sh_export` with the export policy of ``hamgrav export``: an SH model at its own
+    reference radius and (default) degree; any other model (a network) projected at
+    ``degree`` (default :data:`PROJECTION_DEGREE`) on the sphere at the Brillouin radius
+    [canonical] of ``body`` (a :class:`~hamgrav.bodies.catalogue.Body` in the model's frame;
+    default: the body the model was fitted for). ``covariance``: as :func:`sh_export`."""
+    if fitted.sh_expansion() is not None:
+        return sh_export(fitted, degree=degree, covariance=covariance)
+    if body is None:
+        from ..fit.estimator import body_for_model
+
+        body = body_for_model(fitted)
+    return sh_export(
+        fitted,
+        degree=PROJECTION_DEGREE if degree is None else degree,
+        reference_radius=body.brillouin_radius,
+        covariance=covariance,
     )
 
 
