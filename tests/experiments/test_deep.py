@@ -20,9 +20,9 @@ from hamgrav.experiments.deep import (
     join_arcs,
     random_orders,
 )
-from hamgrav.experiments.deep_report import _descents_section
 from hamgrav.fit.design import choose_from_plans, greedy_d_optimal, orbit_plans
 from hamgrav.fit.estimator import GravityEstimator
+from hamgrav.report.deep import _descents_section
 from hamgrav.sim.descent import DescentConfig, tracked_descents
 from hamgrav.sim.tracking import OrbitFamily, TrackingConfig, simulate_orbits
 

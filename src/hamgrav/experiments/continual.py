@@ -18,6 +18,7 @@ import numpy as np
 
 from ..fit.continual import fit_continual
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from ..report.continual import continual_figure, continual_readme
 from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
@@ -31,7 +32,6 @@ from .common import (
     warm_gate_option,
 )
 from .config import option
-from .continual_report import continual_figure, continual_readme
 
 __all__ = ["ContinualExperimentConfig", "ContinualExperiment"]
 

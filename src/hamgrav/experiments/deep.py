@@ -61,6 +61,14 @@ from ..errors import InputError
 from ..fit.continual import ContinualFit
 from ..fit.design import OrbitPlan, choose_from_plans, orbit_plans
 from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from ..report.deep import (
+    bins_figure,
+    deep_readme,
+    descents_figure,
+    geometry_figure,
+    maps_figure,
+    orders_figure,
+)
 from ..sim.descent import DESCENT_SPANS, DescentConfig, tracked_descents
 from .base import Experiment, RunContext, RunOutput
 from .common import (
@@ -80,14 +88,6 @@ from .common import (
     warm_gate_option,
 )
 from .config import label, option
-from .deep_report import (
-    bins_figure,
-    deep_readme,
-    descents_figure,
-    geometry_figure,
-    maps_figure,
-    orders_figure,
-)
 
 __all__ = [
     "DeepCampaignConfig",

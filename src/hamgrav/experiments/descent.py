@@ -24,6 +24,7 @@ from ..core.model import TRUTH_TOLERANCE
 from ..core.propagation import propagate_scalar
 from ..errors import InputError
 from ..fit.estimator import preset
+from ..report.descent import descent_readme
 from ..report.figures import campaign_figure, miss_cdf_figure
 from ..sim.descent import DescentConfig, descend, miss_statistics, release_states
 from .base import Experiment, RunContext, RunOutput
@@ -41,7 +42,6 @@ from .common import (
     simulate,
 )
 from .config import label, option
-from .descent_report import descent_readme
 from .schema import NUMBER, Each, NonEmpty, Optional, validate
 
 __all__ = [

@@ -42,7 +42,7 @@ from ..errors import InputError
 from ..fit.estimator import GravityEstimator, body_for_model, preset
 from ..io.shformats import sh_export, write_icgem
 from ..io.spk import import_spk, write_spk
-from ..report.tables import format_range
+from ..report.own_body import own_body_readme
 from ..sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
 from .base import Experiment, RunContext, RunOutput
 from .config import ExperimentConfig, label, option
@@ -279,55 +279,3 @@ class OwnBodyExperiment(Experiment):
 
     def figures(self, report: dict, artefacts: dict) -> dict:
         return {}
-
-
-def own_body_readme(report: dict) -> list[str]:
-    """README lines of an own-body report."""
-    first = report["repetitions"][0]
-    agg = report["aggregate"]
-    n = len(report["repetitions"])
-    field, export = agg["field_error"], agg["export_error"]
-    sets = list(next(iter(field.values())))
-    shells = list(next(iter(export.values())))
-    lines = [
-        f"A body of {first['body']['mesh_vertices']} vertices read from an ICQ file in km and a "
-        f"body TOML (GM {first['body']['gm_m3_s2']:.4g} m^3/s^2), {first['n_arcs']} arcs "
-        "imported from a type-13 SPK without a truth; every row chooses its model from the "
-        "arcs alone. Relative errors of the perturbing potential against the simulator's truth "
-        f"(1 = no correction), median (min-max) over {n} draws.",
-        "",
-        "## The fitted field in SI (FittedModel.potential at points in metres)",
-        "",
-        "| row | " + " | ".join(sets) + " | beats no correction everywhere |",
-        "|---|" + "---|" * (len(sets) + 1),
-    ]
-    for row, errors in field.items():
-        worst = max(errors[s]["max"] for s in sets)
-        lines.append(
-            f"| {row} | "
-            + " | ".join(format_range(errors[s], "{:.3f}") for s in sets)
-            + f" | {'yes' if worst < 1 else 'no'} (worst {worst:.3f}) |"
-        )
-    lines += [
-        "",
-        "## The exported ICGEM coefficients, evaluated on their own (shells outside R_B)",
-        "",
-        "| row | " + " | ".join(shells) + " |",
-        "|---|" + "---|" * len(shells),
-    ]
-    for row, errors in export.items():
-        lines.append(
-            f"| {row} | " + " | ".join(format_range(errors[s], "{:.3f}") for s in shells) + " |"
-        )
-    lines += ["", "## What each fit chose (first draw)", ""]
-    for row, f in first["fits"].items():
-        chosen = ", ".join(f"{k} {v}" for k, v in f["chosen"].items())
-        lines.append(
-            f"- {row}: {f['outcome']}, {f['n_params']} parameters, held-out cost "
-            f"{f['relative_cost']:.3g} of no correction"
-            + (", flagged overfit" if f.get("overfit") else "")
-            + ("" if f["improved"] else ", flagged as no improvement")
-            + (f", chosen by cross-validation: {chosen}" if chosen else "")
-            + f" ({f['wall_s']:.0f} s)"
-        )
-    return lines

@@ -20,10 +20,10 @@ from ..fit.design import greedy_d_optimal, random_order_logdet, trajectory_infor
 from ..fit.estimator import GravityEstimator
 from ..fit.lm import LevenbergMarquardt
 from ..report.figures import logdet_figure
+from ..report.solvers import solvers_readme
 from .base import Experiment, RunContext, RunOutput
 from .common import CampaignConfig, committed_holdout, errors_of, fit, sets_for, simulate
 from .config import option
-from .solvers_report import solvers_readme
 
 __all__ = ["SolverExperimentConfig", "SolverExperiment"]
 

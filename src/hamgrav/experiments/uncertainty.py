@@ -32,6 +32,7 @@ from ..core.model import evaluate_field
 from ..core.uncertainty import potential_gradient
 from ..fit.covariance import RANK_THRESHOLD, calibration, normal_system
 from ..fit.estimator import fitted_harmonic_penalty, noise_sigmas
+from ..report.uncertainty import calibration_figure, maps_figure, uncertainty_readme
 from ..sim.tracking import observe
 from .base import Experiment, RunContext, RunOutput
 from .common import (
@@ -45,7 +46,6 @@ from .common import (
     simulate,
 )
 from .config import option
-from .uncertainty_report import calibration_figure, maps_figure, uncertainty_readme
 
 __all__ = ["UncertaintyExperimentConfig", "UncertaintyExperiment"]
 

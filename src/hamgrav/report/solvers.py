@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..report.tables import format_range
+from .tables import format_range
 
 __all__ = ["solvers_readme"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..report.tables import format_range
+from .tables import format_range
 
 __all__ = ["continual_readme", "continual_figure"]
 

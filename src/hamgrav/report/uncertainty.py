@@ -8,7 +8,7 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
 from ..bodies.evaluation import set_label
-from ..report.tables import format_range
+from .tables import format_range
 
 __all__ = ["uncertainty_readme", "maps_figure", "calibration_figure", "verdict"]
 

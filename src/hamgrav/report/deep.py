@@ -13,8 +13,8 @@ import numpy as np
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
-from ..report.figures import orbits_and_radii_figure
-from ..report.tables import format_range
+from .figures import orbits_and_radii_figure
+from .tables import format_range
 
 __all__ = [
     "PAPER",
@@ -357,7 +357,7 @@ def _later_paper_rows(reps, summary, net, deepest) -> list[str]:
 
 def _aggregate_of(reps: list[dict], key: str) -> dict:
     """:func:`~hamgrav.experiments.runner.aggregate` of one key (its ``{model: {stat}}``)."""
-    from ..report.tables import aggregate
+    from .tables import aggregate
 
     return aggregate(reps, (key,))[key]
 

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from ..report.tables import format_range
+from .tables import format_range
 
 __all__ = ["data_coverage", "descent_readme"]
 
