@@ -1892,7 +1892,7 @@ def demo(
         "imaged shape at constant density (known physics) alone, and models of the residual "
         "on it"
     )
-    from .experiments.descent_report import data_coverage
+    from .report.descent import data_coverage
 
     coverage = data_coverage(result, DescentExperimentConfig.demo().altitude_m)
     if coverage:
