@@ -77,7 +77,6 @@ with _DeferInterrupt():
     import inspect
     import json
     import math
-    import os
     import warnings
     from pathlib import Path
     from typing import Annotated
@@ -556,6 +555,15 @@ def _origin_option(origin: str | None):
     return origin_m
 
 
+def _import_options(output: Path, inputs: dict, body_name: str, origin, pole):
+    """The import commands' output checked against their ``inputs``, then (body, rotation
+    model or None, origin [m] or None) of --body, the ``pole`` options (--pole-ra,
+    --pole-dec, --prime-meridian, --rotation-epoch) and --origin."""
+    _output(output, **inputs)
+    body_obj = load_body(body_name)
+    return body_obj, _rotation_option(*pole, body_obj), _origin_option(origin)
+
+
 def _say_imported(arcs, output: Path, source: str) -> None:
     """One line on the arcs an import wrote: counts, frames, epoch, noise, dropped samples."""
     cfg = arcs.config
@@ -568,6 +576,85 @@ def _say_imported(arcs, output: Path, source: str) -> None:
     )
 
 
+ArcsOutputOption = Annotated[
+    Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")
+]
+SamplesOption = Annotated[
+    int | None,
+    typer.Option(help="Samples per arc (default: each gap-free run of samples is one arc)."),
+]
+MaxGapOption = Annotated[
+    float | None,
+    typer.Option(help="Split where samples are more than this apart [s] (1.5 median step)."),
+]
+SigmaROption = Annotated[float | None, typer.Option(help="Position noise per component [m].")]
+SigmaVOption = Annotated[
+    float | None, typer.Option(help="Rotating-frame velocity noise per component [m/s].")
+]
+OriginOption = Annotated[
+    str | None, typer.Option(help="Frame origin in the body mesh's frame, x,y,z [m].")
+]
+RotationEpochOption = Annotated[
+    str, typer.Option(help="TDB epoch (ISO) of the prime meridian angle W0.")
+]
+OemEpochOption = Annotated[
+    str | None,
+    typer.Option(
+        help="TDB epoch of canonical time 0 (ISO; default: the epoch in hamgrav's own "
+        "COMMENT lines, else the first sample)."
+    ),
+]
+OemPoleRaOption = Annotated[
+    float | None, typer.Option(help="Inertial frames: pole right ascension [deg, ICRF].")
+]
+OemPoleDecOption = Annotated[
+    float | None, typer.Option(help="Inertial frames: pole declination [deg, ICRF].")
+]
+OemPrimeMeridianOption = Annotated[
+    float | None,
+    typer.Option(help="Inertial frames: prime meridian W0 at --rotation-epoch [deg]."),
+]
+SpkEpochOption = Annotated[
+    str | None,
+    typer.Option(
+        help="TDB epoch of canonical time 0 (ISO; default: the epoch in hamgrav's own "
+        "SPK comment, else the first sample)."
+    ),
+]
+SpkPoleRaOption = Annotated[
+    float | None, typer.Option(help="No body frame in the kernels: pole RA [deg, ICRF].")
+]
+SpkPoleDecOption = Annotated[
+    float | None, typer.Option(help="No body frame in the kernels: pole dec [deg, ICRF].")
+]
+SpkPrimeMeridianOption = Annotated[
+    float | None,
+    typer.Option(help="No body frame in the kernels: prime meridian W0 [deg]."),
+]
+SpkStartOption = Annotated[
+    str | None, typer.Option(help="TDB epoch (ISO) to read from (default: coverage start).")
+]
+SpkStopOption = Annotated[
+    str | None, typer.Option(help="TDB epoch (ISO) to read to (default: coverage end).")
+]
+SpkStepOption = Annotated[
+    float | None,
+    typer.Option(help="Sample every this many seconds [s] (default: the segments' epochs)."),
+]
+SpkCenterOption = Annotated[
+    int | None,
+    typer.Option(help="NAIF ID of the body in the SPKs (default: the body's own)."),
+]
+SpkTargetOption = Annotated[
+    list[str],
+    typer.Option(
+        help="Spacecraft NAIF ID or name, one trajectory each (repeat for several; "
+        "hamgrav's own SPKs: -1000, -1001, ...), or 'all': every target the SPKs give "
+        "relative to the body."
+    ),
+]
+
+
 @_command(app, "import-oem")
 def import_oem_command(
     files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="CCSDS OEM files.")],
@@ -575,42 +662,17 @@ def import_oem_command(
         str,
         typer.Option("--body", help="The central body (catalogue name or body TOML file)."),
     ],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],
-    samples: Annotated[
-        int | None,
-        typer.Option(help="Samples per arc (default: each gap-free run of samples is one arc)."),
-    ] = None,
-    max_gap: Annotated[
-        float | None,
-        typer.Option(help="Split where samples are more than this apart [s] (1.5 median step)."),
-    ] = None,
-    sigma_r: Annotated[float | None, typer.Option(help="Position noise per component [m].")] = None,
-    sigma_v: Annotated[
-        float | None, typer.Option(help="Rotating-frame velocity noise per component [m/s].")
-    ] = None,
-    epoch: Annotated[
-        str | None,
-        typer.Option(
-            help="TDB epoch of canonical time 0 (ISO; default: the epoch in hamgrav's own "
-            "COMMENT lines, else the first sample)."
-        ),
-    ] = None,
-    origin: Annotated[
-        str | None, typer.Option(help="Frame origin in the body mesh's frame, x,y,z [m].")
-    ] = None,
-    pole_ra: Annotated[
-        float | None, typer.Option(help="Inertial frames: pole right ascension [deg, ICRF].")
-    ] = None,
-    pole_dec: Annotated[
-        float | None, typer.Option(help="Inertial frames: pole declination [deg, ICRF].")
-    ] = None,
-    prime_meridian: Annotated[
-        float | None,
-        typer.Option(help="Inertial frames: prime meridian W0 at --rotation-epoch [deg]."),
-    ] = None,
-    rotation_epoch: Annotated[
-        str, typer.Option(help="TDB epoch (ISO) of the prime meridian angle W0.")
-    ] = "2000-01-01T12:00:00",
+    output: ArcsOutputOption,
+    samples: SamplesOption = None,
+    max_gap: MaxGapOption = None,
+    sigma_r: SigmaROption = None,
+    sigma_v: SigmaVOption = None,
+    epoch: OemEpochOption = None,
+    origin: OriginOption = None,
+    pole_ra: OemPoleRaOption = None,
+    pole_dec: OemPoleDecOption = None,
+    prime_meridian: OemPrimeMeridianOption = None,
+    rotation_epoch: RotationEpochOption = "2000-01-01T12:00:00",
 ) -> None:
     """Turn CCSDS OEM tracking files (KVN or XML, one trajectory each) into an arcs file.
 
@@ -621,10 +683,9 @@ def import_oem_command(
     from .io.arcs import save_arcs
     from .io.oem_import import import_oem
 
-    _output(output, **{f"FILE {f}": f for f in files})
-    body_obj = load_body(body_name)
-    rotation = _rotation_option(pole_ra, pole_dec, prime_meridian, rotation_epoch, body_obj)
-    origin_m = _origin_option(origin)
+    pole = (pole_ra, pole_dec, prime_meridian, rotation_epoch)
+    inputs = {f"FILE {f}": f for f in files}
+    body_obj, rotation, origin_m = _import_options(output, inputs, body_name, origin, pole)
     arcs = import_oem(
         files,
         body_obj,
@@ -649,64 +710,22 @@ def import_spk_command(
     body_name: Annotated[
         str, typer.Option("--body", help="The central body: a catalogue name or a body TOML.")
     ],
-    target: Annotated[
-        list[str],
-        typer.Option(
-            help="Spacecraft NAIF ID or name, one trajectory each (repeat for several; "
-            "hamgrav's own SPKs: -1000, -1001, ...), or 'all': every target the SPKs give "
-            "relative to the body."
-        ),
-    ],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Arcs file to write (HDF5).")],
-    start: Annotated[
-        str | None, typer.Option(help="TDB epoch (ISO) to read from (default: coverage start).")
-    ] = None,
-    stop: Annotated[
-        str | None, typer.Option(help="TDB epoch (ISO) to read to (default: coverage end).")
-    ] = None,
-    step: Annotated[
-        float | None,
-        typer.Option(help="Sample every this many seconds [s] (default: the segments' epochs)."),
-    ] = None,
-    samples: Annotated[
-        int | None,
-        typer.Option(help="Samples per arc (default: each gap-free run of samples is one arc)."),
-    ] = None,
-    max_gap: Annotated[
-        float | None,
-        typer.Option(help="Split where samples are more than this apart [s] (1.5 median step)."),
-    ] = None,
-    sigma_r: Annotated[float | None, typer.Option(help="Position noise per component [m].")] = None,
-    sigma_v: Annotated[
-        float | None, typer.Option(help="Rotating-frame velocity noise per component [m/s].")
-    ] = None,
-    epoch: Annotated[
-        str | None,
-        typer.Option(
-            help="TDB epoch of canonical time 0 (ISO; default: the epoch in hamgrav's own "
-            "SPK comment, else the first sample)."
-        ),
-    ] = None,
-    origin: Annotated[
-        str | None, typer.Option(help="Frame origin in the body mesh's frame, x,y,z [m].")
-    ] = None,
-    center: Annotated[
-        int | None,
-        typer.Option(help="NAIF ID of the body in the SPKs (default: the body's own)."),
-    ] = None,
-    pole_ra: Annotated[
-        float | None, typer.Option(help="No body frame in the kernels: pole RA [deg, ICRF].")
-    ] = None,
-    pole_dec: Annotated[
-        float | None, typer.Option(help="No body frame in the kernels: pole dec [deg, ICRF].")
-    ] = None,
-    prime_meridian: Annotated[
-        float | None,
-        typer.Option(help="No body frame in the kernels: prime meridian W0 [deg]."),
-    ] = None,
-    rotation_epoch: Annotated[
-        str, typer.Option(help="TDB epoch (ISO) of the prime meridian angle W0.")
-    ] = "2000-01-01T12:00:00",
+    target: SpkTargetOption,
+    output: ArcsOutputOption,
+    start: SpkStartOption = None,
+    stop: SpkStopOption = None,
+    step: SpkStepOption = None,
+    samples: SamplesOption = None,
+    max_gap: MaxGapOption = None,
+    sigma_r: SigmaROption = None,
+    sigma_v: SigmaVOption = None,
+    epoch: SpkEpochOption = None,
+    origin: OriginOption = None,
+    center: SpkCenterOption = None,
+    pole_ra: SpkPoleRaOption = None,
+    pole_dec: SpkPoleDecOption = None,
+    prime_meridian: SpkPrimeMeridianOption = None,
+    rotation_epoch: RotationEpochOption = "2000-01-01T12:00:00",
 ) -> None:
     """Turn SPICE SPK trajectories (one spacecraft per --target) into an arcs file.
 
@@ -717,10 +736,9 @@ def import_spk_command(
     from .io.arcs import save_arcs
     from .io.spk import import_spk
 
-    _output(output, **{f"KERNEL {k}": k for k in kernels})
-    body_obj = load_body(body_name)
-    rotation = _rotation_option(pole_ra, pole_dec, prime_meridian, rotation_epoch, body_obj)
-    origin_m = _origin_option(origin)
+    pole = (pole_ra, pole_dec, prime_meridian, rotation_epoch)
+    inputs = {f"KERNEL {k}": k for k in kernels}
+    body_obj, rotation, origin_m = _import_options(output, inputs, body_name, origin, pole)
     arcs = import_spk(
         kernels,
         body_obj,
@@ -796,117 +814,178 @@ def _check_fit_memory(settings: dict, hidden_sizes, arcs, limit) -> None:
     )
 
 
+# --------------------------------------------------------------------------------- fit options
+# Module-level option types keep each command's signature short (typer reads them as any
+# annotation).
+FitModelOption = Annotated[
+    str,
+    typer.Option(
+        help="'network-best' (the mean of 3 networks fitted by LM with a harmonic penalty: "
+        "recommended), 'network' (the paper's Adam protocol), 'sh:L', or 'sh:auto' / "
+        "'sh:auto:L' (SH of degree chosen from the arcs by cross-validation among 2..12 / "
+        "2..L).",
+    ),
+]
+HiddenOption = Annotated[str, typer.Option(help="Hidden layer sizes of the network.")]
+PriorOption = Annotated[
+    str | None,
+    typer.Option(help="'shape': constant-density shape prior in the known part."),
+]
+SolverOption = Annotated[
+    str | None,
+    typer.Option(
+        help="'adam' or 'lm' (default: the model's own: LM for network-best and sh:L, Adam "
+        "for network). Naming a solver with network-best fits one network instead of the "
+        "mean of three, and 'adam' leaves out the harmonic penalty.",
+    ),
+]
+WeightedOption = Annotated[
+    bool,
+    typer.Option(
+        help="Whiten each sample's residual by the tracking noise: positions / sigma_r, "
+        "rotating-frame velocities / sigma_v.",
+    ),
+]
+KaulaOption = Annotated[
+    str | None,
+    typer.Option(
+        help="SH: Kaula weight ALPHA, or 'cv' (chosen from the arcs by cross-validation "
+        "among 1e-4..1e-8 and 0; no truth needed).",
+    ),
+]
+HarmonicOption = Annotated[
+    str | None,
+    typer.Option(
+        help="Network fitted by LM: weight of the harmonic penalty (0: off; default: the "
+        "model's own, 1e-5 for network-best), or 'cv' (chosen from the arcs by "
+        "cross-validation among 1e-3..1e-6).",
+    ),
+]
+FoldsOption = Annotated[
+    int,
+    typer.Option(
+        help="Folds of the cross-validation of 'cv' / 'sh:auto' (whole arcs; the "
+        "one-standard-error rule keeps the simplest candidate within one standard error "
+        "of the lowest held-out cost).",
+    ),
+]
+InitOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="Continue this model (same structure) on ARCS, which should hold all the arcs "
+        "so far: a continual stage, recorded in the model file's stage history.",
+    ),
+]
+StepsOption = Annotated[
+    int, typer.Option(help="Adam steps (when the solver is Adam; LM ignores it).")
+]
+LearningRateOption = Annotated[
+    float,
+    typer.Option(help="Adam peak learning rate (when the solver is Adam)."),
+]
+ResumeOption = Annotated[
+    bool,
+    typer.Option(help="Continue an interrupted fit from its checkpoint."),
+]
+StrictOption = Annotated[
+    bool,
+    typer.Option(
+        help="Exit with status 3 when the fit does not clearly beat no correction on its "
+        "held-out arcs, or looks overfit (held-out cost per arc over 10x the training's).",
+    ),
+]
+WorkersOption = Annotated[
+    int,
+    typer.Option(
+        help="Sum the fit over the arcs on a Dask LocalCluster of N worker processes, "
+        "which hold the arcs in chunks (0: in-process threads). Same numbers to rounding.",
+    ),
+]
+SchedulerOption = Annotated[
+    str | None,
+    typer.Option(help="Sum the fit over the arcs on the workers of this Dask scheduler."),
+]
+
+
 @_command(app)
 def fit(
     arcs_file: Annotated[Path, typer.Argument(metavar="ARCS", help="Arcs file (HDF5).")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Model file to write.")],
-    model: Annotated[
-        str,
-        typer.Option(
-            help="'network-best' (the mean of 3 networks fitted by LM with a harmonic penalty: "
-            "recommended), 'network' (the paper's Adam protocol), 'sh:L', or 'sh:auto' / "
-            "'sh:auto:L' (SH of degree chosen from the arcs by cross-validation among 2..12 / "
-            "2..L)."
-        ),
-    ] = "network-best",
-    hidden: Annotated[str, typer.Option(help="Hidden layer sizes of the network.")] = "24,24",
-    prior: Annotated[
-        str | None, typer.Option(help="'shape': constant-density shape prior in the known part.")
-    ] = None,
-    solver: Annotated[
-        str | None,
-        typer.Option(
-            help="'adam' or 'lm' (default: the model's own: LM for network-best and sh:L, Adam "
-            "for network). Naming a solver with network-best fits one network instead of the "
-            "mean of three, and 'adam' leaves out the harmonic penalty."
-        ),
-    ] = None,
-    weighted: Annotated[
-        bool,
-        typer.Option(
-            help="Whiten each sample's residual by the tracking noise: positions / sigma_r, "
-            "rotating-frame velocities / sigma_v."
-        ),
-    ] = False,
-    kaula: Annotated[
-        str | None,
-        typer.Option(
-            help="SH: Kaula weight ALPHA, or 'cv' (chosen from the arcs by cross-validation "
-            "among 1e-4..1e-8 and 0; no truth needed)."
-        ),
-    ] = None,
-    harmonic: Annotated[
-        str | None,
-        typer.Option(
-            help="Network fitted by LM: weight of the harmonic penalty (0: off; default: the "
-            "model's own, 1e-5 for network-best), or 'cv' (chosen from the arcs by "
-            "cross-validation among 1e-3..1e-6)."
-        ),
-    ] = None,
-    folds: Annotated[
-        int,
-        typer.Option(
-            help="Folds of the cross-validation of 'cv' / 'sh:auto' (whole arcs; the "
-            "one-standard-error rule keeps the simplest candidate within one standard error "
-            "of the lowest held-out cost)."
-        ),
-    ] = 5,
-    init: Annotated[
-        Path | None,
-        typer.Option(
-            help="Continue this model (same structure) on ARCS, which should hold all the arcs "
-            "so far: a continual stage, recorded in the model file's stage history."
-        ),
-    ] = None,
-    steps: Annotated[
-        int, typer.Option(help="Adam steps (when the solver is Adam; LM ignores it).")
-    ] = 1500,
-    learning_rate: Annotated[
-        float, typer.Option(help="Adam peak learning rate (when the solver is Adam).")
-    ] = 1e-2,
+    model: FitModelOption = "network-best",
+    hidden: HiddenOption = "24,24",
+    prior: PriorOption = None,
+    solver: SolverOption = None,
+    weighted: WeightedOption = False,
+    kaula: KaulaOption = None,
+    harmonic: HarmonicOption = None,
+    folds: FoldsOption = 5,
+    init: InitOption = None,
+    steps: StepsOption = 1500,
+    learning_rate: LearningRateOption = 1e-2,
     seed: Annotated[int, typer.Option(help="Seed (initialisation, split, batches).")] = 0,
-    resume: Annotated[
-        bool, typer.Option(help="Continue an interrupted fit from its checkpoint.")
-    ] = False,
-    strict: Annotated[
-        bool,
-        typer.Option(
-            help="Exit with status 3 when the fit does not clearly beat no correction on its "
-            "held-out arcs, or looks overfit (held-out cost per arc over 10x the training's)."
-        ),
-    ] = False,
+    resume: ResumeOption = False,
+    strict: StrictOption = False,
     body: BodyOption = None,
     max_memory: MaxMemoryOption = None,
-    workers: Annotated[
-        int,
-        typer.Option(
-            help="Sum the fit over the arcs on a Dask LocalCluster of N worker processes, "
-            "which hold the arcs in chunks (0: in-process threads). Same numbers to rounding."
-        ),
-    ] = 0,
-    scheduler: Annotated[
-        str | None,
-        typer.Option(help="Sum the fit over the arcs on the workers of this Dask scheduler."),
-    ] = None,
+    workers: WorkersOption = 0,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Fit a gravity correction to tracking arcs and write the model file.
 
     The model file is written in every case, with the fit's outcome and diagnostics. An
     interrupted fit keeps a checkpoint beside it (OUTPUT.checkpoint.npz): --resume continues
     it, and a fresh fit refuses to start over it."""
-    from .fit.diagnostics import OVERFIT_FACTOR
-    from .fit.estimator import GravityEstimator, has_noise
     from .io.arcs import load_arcs
-    from .io.models import (
-        checkpoint_path_for,
-        load_checkpoint,
-        load_model,
-        save_checkpoint,
-        save_model,
-    )
+    from .io.fit_run import checkpoint_for_fit, prepare_fit
     from .sizing import memory_limit
 
     # options, then the output, then the inputs: all before any computation
+    settings, kaula_value, hidden_sizes = _fit_options(
+        model, hidden, prior, solver, kaula, harmonic, folds, workers, scheduler, steps
+    )
+    _number(learning_rate, "--learning-rate", 0.0, open_low=True)
+    _seed(seed)
+    limit = memory_limit(max_memory)
+    _output(output, ARCS=arcs_file)  # -o MODEL --init MODEL continues the model in place
+    ckpt = checkpoint_for_fit(output, resume)
+    arcs = load_arcs(arcs_file)
+    _check_fit_memory(settings, hidden_sizes, arcs, limit)
+    body_obj = _body_for(body, arcs=arcs)
+    settings |= {"adam_steps": steps, "learning_rate": learning_rate}
+    settings |= {"prior": prior, "kaula": kaula_value, "seed": seed, "folds": folds}
+    estimator = _fit_estimator(settings, arcs, arcs_file, weighted, body_obj)
+    run = prepare_fit(
+        estimator, arcs, output, init=init, resume=resume, checkpoint=ckpt, init_name="--init"
+    )
+    before = _file_id(output)  # to tell, if stopped, whether this run wrote the model
+    try:
+        _run_fit(run, workers, scheduler, steps)
+        # inside the same try: a signal between the fit and the model's write (a loaded
+        # machine delivers one there) must still say the checkpoint is kept
+        run.write(arcs_file)
+    except (KeyboardInterrupt, DiskError, DistributedError) as exc:
+        _fit_stopped(exc, ckpt, output, written=_file_id(output) not in (None, before))
+    _report_fit(estimator, output, settings["term"], strict)
+
+
+def _fit_estimator(settings: dict, arcs, arcs_file: Path, weighted: bool, body_obj):
+    """The estimator of fit's ``settings`` on ``body_obj``; --weighted refused for arcs
+    without a noise level."""
+    from .fit.estimator import GravityEstimator, has_noise
+
+    if weighted and not has_noise(arcs):
+        raise InputError(
+            f"--weighted: arcs {arcs_file} record no tracking noise (noise-free arcs) to whiten "
+            "by; leave out --weighted"
+        )
+    return GravityEstimator(**settings, weighted=weighted, body=body_obj)
+
+
+def _fit_options(
+    model, hidden, prior, solver, kaula, harmonic, folds, workers, scheduler, steps
+) -> tuple[dict, float | str | None, tuple[int, ...]]:
+    """fit's options checked: (estimator settings of --model, --hidden, --solver and
+    --harmonic; the --kaula value; the hidden layer sizes)."""
     settings = _model_option(model)
     term = settings["term"]
     hidden_sizes = tuple(_ints(hidden, "--hidden"))
@@ -929,23 +1008,6 @@ def fit(
     if workers and scheduler:
         raise InputError("give --workers or --scheduler, not both (a scheduler has its workers)")
     _number(steps, "--steps", 1, integer=True)
-    _number(learning_rate, "--learning-rate", 0.0, open_low=True)
-    _seed(seed)
-    limit = memory_limit(max_memory)
-    _output(output, ARCS=arcs_file)  # -o MODEL --init MODEL continues the model in place
-    ckpt = checkpoint_path_for(output)
-    if resume and not ckpt.exists():
-        raise InputError(f"no checkpoint {ckpt} to resume from; run without --resume")
-    if not resume and (ckpt.exists() or ckpt.is_symlink()):
-        raise InputError(
-            f"a checkpoint of an interrupted fit exists: {ckpt}; continue that fit with the "
-            "same command and --resume, or delete the checkpoint to start afresh"
-        )
-    _output(ckpt, "checkpoint")
-
-    arcs = load_arcs(arcs_file)
-    _check_fit_memory(settings, hidden_sizes, arcs, limit)
-    body_obj = _body_for(body, arcs=arcs)
     if solver is not None:  # a solver by name replaces the configuration's
         settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
         if solver == "adam":  # the harmonic penalty is an LM objective term
@@ -954,74 +1016,45 @@ def fit(
         settings = {**settings, "hidden": hidden_sizes}
     if harmonic_value is not None:
         settings["harmonic"] = harmonic_value or None
-    settings |= {"adam_steps": steps, "learning_rate": learning_rate}
-    if weighted and not has_noise(arcs):
-        raise InputError(
-            f"--weighted: arcs {arcs_file} record no tracking noise (noise-free arcs) to whiten "
-            "by; leave out --weighted"
+    return settings, kaula_value, hidden_sizes
+
+
+def _run_fit(run, workers: int, scheduler: str | None, steps: int) -> None:
+    """Run the prepared fit ``run`` (an :class:`hamgrav.io.fit_run.FitRun`) with a progress
+    display, on a Dask cluster with ``workers`` or ``scheduler``."""
+    estimator = run.estimator
+    with contextlib.ExitStack() as cluster, _progress() as progress:
+        if workers or scheduler:
+            from .experiments.runner import dask_client
+
+            estimator.client = cluster.enter_context(dask_client(workers, scheduler))
+        total = steps if estimator.solver_name == "adam" else None
+        choices = estimator.choices()
+        # the cross-validation fits come first and report no iterations: say what runs
+        first = (
+            f"choosing {', '.join(choices)} by {estimator.folds}-fold cross-validation "
+            f"({sum(map(len, choices.values())) * estimator.folds} fits), then fitting"
+            if choices
+            else "fitting"
         )
-    estimator = GravityEstimator(
-        **settings,
-        prior=prior,
-        weighted=weighted,
-        kaula=kaula_value,
-        seed=seed,
-        body=body_obj,
-        folds=folds,
-    )
-    theta0, resume_state, previous = None, None, None
-    if init is not None:
-        try:
-            previous = load_model(init)
-            estimator.check_continuation(previous, arcs)
-        except HamgravError as exc:  # name the option: the model being continued
-            raise type(exc)(f"--init: {exc}") from None
-    run_solver = (estimator.warm_solver if init is not None else None) or estimator.make_solver()
-    identity = estimator.checkpoint_identity(arcs, run_solver, init=previous)
-    if resume:
-        theta0, resume_state = load_checkpoint(ckpt, expect=identity)
-    before = _file_id(output)  # to tell, if stopped, whether this run wrote the model
-    try:
-        with contextlib.ExitStack() as cluster, _progress() as progress:
-            if workers or scheduler:
-                from .experiments.runner import dask_client
+        task = progress.add_task(first, total=total)
 
-                estimator.client = cluster.enter_context(dask_client(workers, scheduler))
-            total = steps if estimator.solver_name == "adam" else None
-            choices = estimator.choices()
-            # the cross-validation fits come first and report no iterations: say what runs
-            first = (
-                f"choosing {', '.join(choices)} by {estimator.folds}-fold cross-validation "
-                f"({sum(map(len, choices.values())) * estimator.folds} fits), then fitting"
-                if choices
-                else "fitting"
-            )
-            task = progress.add_task(first, total=total)
+        def on_iteration(it, record):
+            _stop_if_signalled()
+            text = " ".join(f"{k} {v:.3e}" for k, v in record.items() if isinstance(v, float))
+            progress.update(task, completed=it, description=f"fitting [{text}]")
 
-            def on_iteration(it, record):
-                _stop_if_signalled()
-                text = " ".join(f"{k} {v:.3e}" for k, v in record.items() if isinstance(v, float))
-                progress.update(task, completed=it, description=f"fitting [{text}]")
+        with warnings.catch_warnings():
+            # said below, after the fit's summary, in the command's words
+            warnings.filterwarnings("ignore", message="the fit looks overfit")
+            run.fit(on_iteration)
 
-            with warnings.catch_warnings():
-                # said below, after the fit's summary, in the command's words
-                warnings.filterwarnings("ignore", message="the fit looks overfit")
-                how = {
-                    "init": theta0,
-                    "callback": on_iteration,
-                    "checkpoint": lambda th, st: save_checkpoint(ckpt, th, st, identity),
-                    "resume": resume_state,
-                }
-                if previous is not None:
-                    estimator.continue_fit(previous, arcs, **how)
-                else:
-                    estimator.fit(arcs, **how)
-        # inside the same try: a signal between the fit and the model's write (a loaded
-        # machine delivers one there) must still say the checkpoint is kept
-        save_model(estimator.fitted_.with_arcs_file(arcs_file), output)
-        ckpt.unlink(missing_ok=True)
-    except (KeyboardInterrupt, DiskError, DistributedError) as exc:
-        _fit_stopped(exc, ckpt, output, written=_file_id(output) not in (None, before))
+
+def _report_fit(estimator, output: Path, term: str, strict: bool) -> None:
+    """What a fit wrote, its choices by cross-validation and its warnings; with ``strict``,
+    exit with status 3 when it failed to improve or looks overfit."""
+    from .fit.diagnostics import OVERFIT_FACTOR
+
     result = estimator.result_
     diag = estimator.diagnostics_
     console.print(
@@ -1097,28 +1130,12 @@ def _file_id(path: Path) -> tuple | None:
     return st.st_dev, st.st_ino, st.st_mtime_ns
 
 
-def _checkpoint_point(ckpt: Path) -> str:
-    """Where the fit kept in checkpoint ``ckpt`` stands, in words (e.g. "Adam step 75")."""
-    from .io.models import load_checkpoint
-
-    try:
-        _, state = load_checkpoint(ckpt)
-    except HamgravError as exc:  # not expected: checkpoints are written whole or not at all
-        return f"unreadable: {exc}"
-    where = []
-    if "member" in state:
-        where.append(f"network {int(state['member']) + 1} of the ensemble")
-    if "step" in state:
-        where.append(f"Adam step {int(state['step'])}")
-    elif "iteration" in state:
-        where.append(f"LM iteration {int(state['iteration'])}")
-    return ", ".join(where) or "its solver's last state"
-
-
 def _fit_stopped(exc: BaseException, ckpt: Path, output: Path, written: bool) -> None:
     """End a fit stopped by Ctrl-C, SIGTERM or a disk error, in one line that says what was
     kept: the model when this run ``written`` it whole, else the last complete checkpoint,
     else nothing (and then nothing blocks a plain rerun)."""
+    from .io.fit_run import checkpoint_progress
+
     remove_partial_files()
     how, status = _stopped(exc)
     if written:  # the model is complete: its checkpoint is stale
@@ -1126,7 +1143,7 @@ def _fit_stopped(exc: BaseException, ckpt: Path, output: Path, written: bool) ->
         kept = f"the fit is complete and its model written: {output}"
     elif ckpt.exists():
         kept = (
-            f"the last checkpoint is kept ({_checkpoint_point(ckpt)}): continue with the same "
+            f"the last checkpoint is kept ({checkpoint_progress(ckpt)}): continue with the same "
             f"command and --resume ({ckpt})"
         )
     else:
@@ -1145,44 +1162,44 @@ def _fit_stopped(exc: BaseException, ckpt: Path, output: Path, written: bool) ->
     raise typer.Exit(code=status) from None
 
 
-def _truth_arcs(fitted, model_file: Path, arcs_file: Path | None):
-    """The arcs whose truth ``fitted`` is compared with: ``--arcs`` or the file recorded at
-    the fit, refused unless it holds the truth (and frame) the model was fitted against."""
-    from .io.arcs import load_arcs
-
-    training = fitted.training
-    source = arcs_file or training.get("arcs_file") or fitted.solver.get("arcs_file")
-    if not source:
-        raise InputError(f"model file {model_file} records no arcs file; pass --arcs ARCS")
-    if not isinstance(source, str | os.PathLike):
-        raise InputError(
-            f"model file {model_file} records its arcs file as {source!r}, not a path; pass "
-            "--arcs ARCS"
-        )
-    if arcs_file is None and not Path(source).exists():
-        raise InputError(
-            f"the arcs file model {model_file} was fitted to, {source}, is gone; pass the "
-            "campaign's arcs with --arcs ARCS"
-        )
-    arcs = load_arcs(source)
-    fitted.check_arcs(
-        arcs, source, f"model {model_file}", "pass the arcs of this model's campaign with --arcs"
-    )
-    truth = training.get("truth_sha256")
-    if "truth_sha256" not in training:
-        warnings.warn(
-            f"model file {model_file} does not record the truth it was fitted against "
-            f"(older hamgrav); comparing with the truth of {source} unchecked",
-            HamgravWarning,
-            2,
-        )
-    elif truth is not None and arcs.truth_digest() != truth:
-        # (None: fitted to arcs without a truth, imported tracking: any truth may serve)
-        raise InputError(
-            f"arcs {source} hold another truth than the one model {model_file} was fitted "
-            "against (truth digests differ); pass the arcs of this model's campaign with --arcs"
-        )
-    return arcs
+# ---------------------------------------------------------------------------- evaluate options
+JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
+TruthArcsOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--arcs",
+        help="Arcs whose truth to compare with (default: the fit's); refused unless they "
+        "hold the truth the model was fitted against.",
+    ),
+]
+UncertaintyOption = Annotated[
+    bool,
+    typer.Option(
+        "--uncertainty",
+        "--sigma",
+        help="The formal sigma of the potential on each set, SH or network (and, with a "
+        "truth, how well it is calibrated).",
+    ),
+]
+PointsOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--points",
+        help="CSV of points [m] in the model's body-fixed frame, header x_m,y_m,z_m: write "
+        "the field there to -o (needs no arcs and no truth).",
+    ),
+]
+FieldOutputOption = Annotated[
+    Path | None,
+    typer.Option("-o", "--output", help="Field CSV written for --points."),
+]
+FigureOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="PNG of every arc's position and velocity residuals against time in noise "
+        "sigmas (arcs without a truth)."
+    ),
+]
 
 
 @_command(app)
@@ -1190,44 +1207,13 @@ def evaluate(
     model_file: Annotated[Path, typer.Argument(metavar="MODEL", help="Model file.")],
     shells: Annotated[str, typer.Option(help="Shell radii r / R_B (>= 1).")] = "1.05,1.1,1.2",
     altitude: Annotated[str, typer.Option(help="Surface-following altitudes [m] (>= 0).")] = "30",
-    arcs_file: Annotated[
-        Path | None,
-        typer.Option(
-            "--arcs",
-            help="Arcs whose truth to compare with (default: the fit's); refused unless they "
-            "hold the truth the model was fitted against.",
-        ),
-    ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
-    uncertainty: Annotated[
-        bool,
-        typer.Option(
-            "--uncertainty",
-            "--sigma",
-            help="The formal sigma of the potential on each set, SH or network (and, with a "
-            "truth, how well it is calibrated).",
-        ),
-    ] = False,
+    arcs_file: TruthArcsOption = None,
+    as_json: JsonOption = False,
+    uncertainty: UncertaintyOption = False,
     body: BodyOption = None,
-    points_file: Annotated[
-        Path | None,
-        typer.Option(
-            "--points",
-            help="CSV of points [m] in the model's body-fixed frame, header x_m,y_m,z_m: write "
-            "the field there to -o (needs no arcs and no truth).",
-        ),
-    ] = None,
-    output: Annotated[
-        Path | None,
-        typer.Option("-o", "--output", help="Field CSV written for --points."),
-    ] = None,
-    figure: Annotated[
-        Path | None,
-        typer.Option(
-            help="PNG of every arc's position and velocity residuals against time in noise "
-            "sigmas (arcs without a truth)."
-        ),
-    ] = None,
+    points_file: PointsOption = None,
+    output: FieldOutputOption = None,
+    figure: FigureOption = None,
 ) -> None:
     """Relative field errors of a fitted model against the truth recorded with the arcs.
 
@@ -1245,8 +1231,8 @@ def evaluate(
     potential_central_m2_s2 (GM/r), potential_known_m2_s2 (the known part beyond it, e.g. the
     shape prior) and potential_correction_m2_s2 (the learned term), which add up to
     potential_m2_s2."""
-    from .bodies.evaluation import evaluation_sets, set_label
-    from .core.fields import field_errors
+    from .bodies.evaluation import evaluation_sets
+    from .io.model_arcs import truth_arcs
     from .io.models import load_model
 
     if points_file is not None:
@@ -1255,10 +1241,7 @@ def evaluate(
                 "--points evaluates the model alone at the points; leave out --arcs, "
                 "--uncertainty and --figure, or run evaluate without --points for them"
             )
-        if output is None:
-            raise InputError(f"--points {points_file} needs -o FIELD.csv, the file to write")
-        output = _output(output, "-o", model=model_file, points=points_file)
-        _evaluate_at_points(load_model(model_file), model_file, points_file, output, as_json)
+        _evaluate_at_points(model_file, points_file, output, as_json)
         return
     if output is not None:
         raise InputError(
@@ -1270,7 +1253,7 @@ def evaluate(
     _check_shells(radii)
     altitudes = _floats(altitude, "--altitude (metres above the surface)", 0.0)
     fitted = load_model(model_file)
-    arcs = _truth_arcs(fitted, model_file, arcs_file)
+    arcs = truth_arcs(fitted, model_file, arcs_file)
     if figure is not None and arcs.has_truth:
         raise InputError(
             f"--figure {figure}: residual figures are drawn for arcs without a truth (imported "
@@ -1278,28 +1261,34 @@ def evaluate(
         )
     body = _body_for(body, arcs=arcs)
     sets = evaluation_sets(body, radii, altitudes)
-    report = None
-    if uncertainty:
-        from .fit.covariance import parameter_covariance, uncertainty_report
-        from .fit.estimator import fitted_harmonic_penalty, has_noise
-
-        if not has_noise(arcs):
-            raise InputError(
-                f"--uncertainty: arcs {arcs_file or fitted.training.get('arcs_file')} record no "
-                "tracking noise (noise-free arcs), so the formal errors are undefined; leave out "
-                "--uncertainty, or pass --arcs with arcs that have a noise level"
-            )
-        # a network fitted with the harmonic penalty: its rows in the normal matrix, as
-        # the Kaula weight of an SH fit (the fit's own noise response)
-        penalty = fitted_harmonic_penalty(fitted, arcs, body)
-        covariance = parameter_covariance(fitted, arcs, penalty=penalty)
-        truth = arcs.truth if arcs.has_truth else None
-        report = uncertainty_report(fitted, covariance.scaled(), sets, truth)
-        report = {"covariance": covariance.describe(), **report}
-    uncertainty = report
+    report = _uncertainty(fitted, arcs, body, sets, arcs_file) if uncertainty else None
     if not arcs.has_truth:
-        _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, uncertainty, figure)
+        _evaluate_without_truth(model_file, fitted, arcs, sets, as_json, report, figure)
         return
+    _evaluate_with_truth(model_file, fitted, arcs, sets, as_json, report)
+
+
+def _uncertainty(fitted, arcs, body, sets, arcs_file: Path | None) -> dict:
+    """evaluate --uncertainty: the formal uncertainty of the potential on ``sets``
+    (:func:`hamgrav.fit.covariance.potential_uncertainty`), refused for noise-free arcs."""
+    from .fit.covariance import potential_uncertainty
+    from .fit.estimator import has_noise
+
+    if not has_noise(arcs):
+        raise InputError(
+            f"--uncertainty: arcs {arcs_file or fitted.training.get('arcs_file')} record no "
+            "tracking noise (noise-free arcs), so the formal errors are undefined; leave out "
+            "--uncertainty, or pass --arcs with arcs that have a noise level"
+        )
+    return potential_uncertainty(fitted, arcs, body, sets)
+
+
+def _evaluate_with_truth(model_file: Path, fitted, arcs, sets, as_json: bool, uncertainty):
+    """The evaluate report of arcs with a truth: the relative field error on each set (and,
+    with ``uncertainty``, sigma_V and its calibration), as JSON or a table."""
+    from .bodies.evaluation import set_label
+    from .core.fields import field_errors
+
     errors = field_errors(fitted.model, fitted.params, arcs.truth, sets)
     bad = [name for name, value in errors.items() if not math.isfinite(value)]
     if bad:
@@ -1361,13 +1350,18 @@ NO_TRUTH_NOTE = (
 )
 
 
-def _evaluate_at_points(fitted, model_file: Path, points_file: Path, output: Path, as_json: bool):
-    """evaluate --points: the field of ``fitted`` at the points of ``points_file`` [m],
+def _evaluate_at_points(model_file: Path, points_file: Path, output: Path | None, as_json: bool):
+    """evaluate --points: the field of the model at the points of ``points_file`` [m],
     written as CSV to ``output`` (columns in :func:`evaluate`'s docstring)."""
     import numpy as np
 
+    from .io.models import load_model
     from .io.points import read_points_csv, write_columns_csv
 
+    if output is None:
+        raise InputError(f"--points {points_file} needs -o FIELD.csv, the file to write")
+    output = _output(output, "-o", model=model_file, points=points_file)
+    fitted = load_model(model_file)
     points, lines = read_points_csv(points_file)
     parts = {name: fitted.potential(points, name) for name in ("central", "known", "correction")}
     columns = {"x_m": points[:, 0], "y_m": points[:, 1], "z_m": points[:, 2]}
@@ -1396,9 +1390,6 @@ def _evaluate_without_truth(
 ) -> None:
     """The evaluate report of arcs without a truth: residuals, chi-square, fitted field;
     with ``figure``, the residuals against time drawn there (PNG)."""
-    import numpy as np
-
-    from .bodies.evaluation import set_label
     from .fit.residuals import field_summary, residual_report, residual_series
 
     series = residual_series(fitted, arcs)
@@ -1429,6 +1420,17 @@ def _evaluate_without_truth(
             out["uncertainty"] = uncertainty
         sys.stdout.write(json.dumps(out, allow_nan=False) + "\n")
         return
+    _print_residuals(model_file, arcs, report)
+    _print_fitted_field(field, uncertainty)
+    if figure is not None:
+        console.print(f"wrote the residual figure {figure}", highlight=False)
+    console.print(NO_TRUTH_NOTE, highlight=False)
+
+
+def _print_residuals(model_file: Path, arcs, report: dict) -> None:
+    """The residual table and chi-square line of evaluate on arcs without a truth."""
+    import numpy as np
+
     rp, rv = np.asarray(report["rms_position_m"]), np.asarray(report["rms_velocity_mm_s"])
     table = Table(title=escape(f"residuals of {model_file} on {arcs.n_arcs} arcs (no truth)"))
     table.add_column("quantity")
@@ -1455,6 +1457,13 @@ def _evaluate_without_truth(
         "arcs down to the noise (white noise and each arc's noisy first sample)",
         highlight=False,
     )
+
+
+def _print_fitted_field(field: dict, uncertainty: dict | None) -> None:
+    """The fitted field's RMS table of evaluate on arcs without a truth (with sigma_V and
+    the covariance note when ``uncertainty`` is given)."""
+    from .bodies.evaluation import set_label
+
     table = Table(title="fitted field (RMS over each set)")
     columns = ["evaluation set", "perturbing V [m^2/s^2]", "learned V [m^2/s^2]"]
     columns += ["perturbing |a| [m/s^2]"] + (["sigma_V [m^2/s^2]"] if uncertainty else [])
@@ -1474,9 +1483,6 @@ def _evaluate_without_truth(
     console.print(table)
     if uncertainty:
         console.print(_covariance_note(uncertainty["covariance"]), highlight=False)
-    if figure is not None:
-        console.print(f"wrote the residual figure {figure}", highlight=False)
-    console.print(NO_TRUTH_NOTE, highlight=False)
 
 
 @_command(app, "export")
@@ -1522,27 +1528,27 @@ def export_command(
         write_network_json(fitted, output)
         console.print(f"wrote {output}: the network and the known part, canonical units")
         return
-    from .io.shformats import sh_export, write_icgem, write_shadr
+    from .io.model_arcs import sh_formal_covariance
+    from .io.shformats import model_export, write_icgem, write_shadr
 
     # an SH model is exported at its own degree and radius, with its formal errors
-    term = fitted.model.learnable
-    is_sh = term is not None and term.expansion() is not None
-    reference = None if is_sh else _body_for(body, fitted=fitted).brillouin_radius
+    is_sh = fitted.sh_expansion() is not None
+    body_obj = None if is_sh else _body_for(body, fitted=fitted)
     covariance, note = None, "no formal errors (--no-errors)"
     if errors and is_sh:
-        covariance, note = _formal_covariance(fitted, arcs_file)
+        covariance, note = sh_formal_covariance(fitted, arcs_file)
     elif errors:
         note = "no formal errors: they are computed for SH models only"
-    export = sh_export(
-        fitted,
-        degree=degree if degree is not None or is_sh else 8,
-        reference_radius=reference,
-        covariance=covariance,
-    )
+    export = model_export(fitted, degree=degree, body=body_obj, covariance=covariance)
     if fmt == "icgem":
         write_icgem(export, output, source=str(model_file))
     else:
         write_shadr(export, output)
+    _say_exported(export, output, note)
+
+
+def _say_exported(export, output: Path, note: str) -> None:
+    """What export wrote: degree, GM, reference radius, contents and accuracy."""
     console.print(
         f"wrote {output}: degree {export.degree}, GM {export.gm_m3_s2:.10g} m^3/s^2, reference "
         f"radius {export.reference_radius_m:.10g} m, fully normalised, C00 = 1 (central term "
@@ -1557,31 +1563,6 @@ def export_command(
             f" {value:.3e}",
             highlight=False,
         )
-
-
-def _formal_covariance(fitted, arcs_file: Path | None):
-    """(covariance or None, a note for the user) of an SH model from its arcs."""
-    from .fit.covariance import formal_covariance
-    from .fit.estimator import has_noise
-    from .io.arcs import load_arcs
-
-    if fitted.model.per_trajectory:
-        return None, "no formal errors: the model has per-trajectory terms (e.g. SRP)"
-    source = arcs_file or fitted.training.get("arcs_file") or fitted.solver.get("arcs_file")
-    if not isinstance(source, str | os.PathLike) or (
-        arcs_file is None and not Path(source).is_file()
-    ):
-        return None, "no formal errors: the fit's arcs file is not there (pass --arcs ARCS)"
-    arcs = load_arcs(source)
-    fitted.check_arcs(
-        arcs,
-        source,
-        "the model",
-        "pass the model's arcs with --arcs, or export without formal errors (--no-errors)",
-    )
-    if not has_noise(arcs):
-        return None, f"no formal errors: {source} records no tracking noise (noise-free arcs)"
-    return formal_covariance(fitted, arcs), f"formal errors from {source}"
 
 
 @_command(app)
@@ -1607,7 +1588,7 @@ def select(
     from .fit.design import select_orbits
     from .io.models import load_model
     from .sim.campaign import load_campaign
-    from .sizing import check_memory, memory_limit, pool_bytes
+    from .sizing import memory_limit
 
     _number(picks, "--picks", 1, integer=True)
     _seed(seed)
@@ -1616,6 +1597,29 @@ def select(
     fitted = load_model(model_file)
     config = load_campaign(pool)
     body_obj = _body_for(body, fitted=fitted)
+    _check_pool(config, pool, fitted, model_file, body_obj, picks, limit)
+    with _progress() as progress:
+        progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
+        rows = select_orbits(
+            fitted,
+            list(config.families),
+            config.tracking,
+            brillouin_radius=body_obj.brillouin_radius,
+            picks=picks,
+            seed=seed,
+        )
+    console.print(_picks_table(rows))
+    if output is not None:
+        text = json.dumps({"model": str(model_file), "picks": rows}, indent=2, allow_nan=False)
+        with atomic_path(output) as tmp:
+            tmp.write_text(text + "\n")
+
+
+def _check_pool(config, pool: Path, fitted, model_file: Path, body_obj, picks: int, limit):
+    """Refuse a select pool of another body than the model's (another shape), fewer
+    candidates than --picks, or more memory than ``limit`` [bytes]."""
+    from .sizing import check_memory, pool_bytes
+
     if config.body != fitted.body_name and (
         load_body(config.body).mesh_sha256 != body_obj.mesh_sha256
     ):
@@ -1640,16 +1644,10 @@ def select(
         limit,
         "lower [orbits] count, [tracking] arcs_per_orbit or samples_per_arc of the pool",
     )
-    with _progress() as progress:
-        progress.add_task(f"predicting {len(config.families)} candidate orbits", total=None)
-        rows = select_orbits(
-            fitted,
-            list(config.families),
-            config.tracking,
-            brillouin_radius=body_obj.brillouin_radius,
-            picks=picks,
-            seed=seed,
-        )
+
+
+def _picks_table(rows: list[dict]) -> Table:
+    """The table of select's D-optimal picks."""
     table = Table(title="D-optimal picks (log det of the accumulated information)")
     for col in ("pick", "candidate", "r / R_B", "incl. [deg]", "gain", "log det", "random order"):
         table.add_column(escape(col), justify="right")
@@ -1663,11 +1661,7 @@ def select(
             f"{r['logdet']:.2f}",
             f"{r['random_order_logdet']:.2f}",
         )
-    console.print(table)
-    if output is not None:
-        text = json.dumps({"model": str(model_file), "picks": rows}, indent=2, allow_nan=False)
-        with atomic_path(output) as tmp:
-            tmp.write_text(text + "\n")
+    return table
 
 
 # ------------------------------------------------------------------------------ experiments
@@ -1702,9 +1696,6 @@ def _run_and_report(
 def _experiment_command(experiment):
     """A typer command for ``experiment`` whose options are its config's fields."""
     config_type = experiment.config_type
-    import dataclasses
-
-    types_ = config_type.field_types()
     defaults = experiment.default_config()
 
     def command(**kwargs):
@@ -1742,6 +1733,22 @@ def _experiment_command(experiment):
         )
         console.print(f"wrote {output}/results.json, README.md and figures ({report['wall_s']} s)")
 
+    params = _experiment_params(experiment)
+    command.__signature__ = inspect.Signature(params)
+    command.__annotations__ = {p.name: p.annotation for p in params}
+    command.__doc__ = experiment.title
+    return command
+
+
+def _experiment_params(experiment) -> list[inspect.Parameter]:
+    """The options of an experiment's command: one per field of its config (default None:
+    the config's own), then the runner's (config file, seed, repeat, output, workers,
+    scheduler, max memory)."""
+    import dataclasses
+
+    config_type = experiment.config_type
+    types_ = config_type.field_types()
+    defaults = experiment.default_config()
     params = []
     for f in dataclasses.fields(config_type):
         kind = types_[f.name]
@@ -1788,10 +1795,7 @@ def _experiment_command(experiment):
                 annotation=Annotated[kind, opt],
             )
         )
-    command.__signature__ = inspect.Signature(params)
-    command.__annotations__ = {p.name: p.annotation for p in params}
-    command.__doc__ = experiment.title
-    return command
+    return params
 
 
 @_command(experiment_app, "readme")
@@ -1872,19 +1876,7 @@ def demo(
     save_arcs(arcs, output / "arcs.h5")
     export_oem_by_trajectory(arcs, _output_folder(output / "oem", "the OEM folder"))
     result = report["repetitions"][0]
-    table = Table(title="synthetic contact binary: models fitted to the tracking")
-    for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):
-        table.add_column(escape(col), justify="right", no_wrap=col == "model")
-    for name, st in result["models"].items():
-        fe = result["field_error"][name]
-        cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "worst_m")]
-        table.add_row(
-            name,
-            *(f"{fe[k]:.3f}" for k in ("r1.05", "r1.2", "r1.5", "h30m")),
-            *cells,
-            f"{st['landed']}/{st['total']}",
-        )
-    console.print(table)
+    console.print(_demo_table(result))
     console.print(
         "field errors: relative error of the perturbing potential (1 = no correction); "
         "r = shells in R_B, h30m = 30 m above the surface; misses: distance between the "
@@ -1904,6 +1896,23 @@ def demo(
         f"wrote {output}/README.md, results.json, the figures, arcs.h5 (the arcs) and oem/ "
         f"(CCSDS OEM, one file per orbit) in {report['wall_s']:.0f} s"
     )
+
+
+def _demo_table(result: dict) -> Table:
+    """The demo's table: field errors and descent misses per model."""
+    table = Table(title="synthetic contact binary: models fitted to the tracking")
+    for col in ("model", "r1.05", "r1.2", "r1.5", "h30m", "median miss [m]", "worst [m]", "landed"):
+        table.add_column(escape(col), justify="right", no_wrap=col == "model")
+    for name, st in result["models"].items():
+        fe = result["field_error"][name]
+        cells = ["-" if st[k] is None else f"{st[k]:.1f}" for k in ("median_m", "worst_m")]
+        table.add_row(
+            name,
+            *(f"{fe[k]:.3f}" for k in ("r1.05", "r1.2", "r1.5", "h30m")),
+            *cells,
+            f"{st['landed']}/{st['total']}",
+        )
+    return table
 
 
 def main(args: list[str] | None = None) -> None:
