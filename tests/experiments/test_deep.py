@@ -9,6 +9,7 @@ import pytest
 import trimesh
 
 from hamgrav.bodies.interiors import build_truth
+from hamgrav.core.arcs import join_arcs
 from hamgrav.core.geometry import points_inside
 from hamgrav.core.model import Model
 from hamgrav.core.terms import NeuralPotential, PointMass
@@ -16,11 +17,9 @@ from hamgrav.errors import InputError
 from hamgrav.experiments.deep import (
     DeepExperimentConfig,
     arrival_stages,
-    d_optimal_campaign,
-    join_arcs,
     random_orders,
 )
-from hamgrav.fit.design import choose_from_plans, greedy_d_optimal, orbit_plans
+from hamgrav.fit.design import choose_from_plans, d_optimal_campaign, greedy_d_optimal, orbit_plans
 from hamgrav.fit.estimator import GravityEstimator
 from hamgrav.report.deep import _descents_section
 from hamgrav.sim.descent import DescentConfig, tracked_descents

@@ -1,13 +1,16 @@
 """Evaluation point sets of a body: shells, surface-following sets, radial bins of a set and
-equatorial-plane grids (canonical points)."""
+equatorial-plane grids (canonical points); and the field errors of fitted models against a
+truth interior on them (deep-region bins, equatorial maps): simulation scores, for
+experiments only, since a user has no truth."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..core.fields import shell_points
+from ..core.fields import field_errors, pointwise_field_errors, shell_points
 from ..core.geometry import points_inside
 from .catalogue import Body
+from .interiors import Truth
 
 __all__ = [
     "evaluation_sets",
@@ -16,6 +19,9 @@ __all__ = [
     "radial_bins",
     "equatorial_grid",
     "exterior_points",
+    "significant",
+    "deep_bin_errors",
+    "equatorial_error_map",
 ]
 
 
@@ -97,3 +103,64 @@ def exterior_points(body: Body, max_radius: float, n: int = 1500, *, seed: int =
         if draw > 50:
             raise ValueError(f"could not place {n} points outside the body")
     return np.concatenate(kept)[:n]
+
+
+def significant(x: float) -> float | None:
+    """A finite error rounded to 4 significant digits, or None (empty set, overflow)."""
+    return float(f"{x:.4g}") if np.isfinite(x) else None
+
+
+def deep_bin_errors(fitted: dict, truth: Truth, altitude_m: float, bins_rb, seed: int) -> dict:
+    """Relative field errors of fitted models ({name: (model, params)}) against ``truth`` on
+    the surface-following set ``altitude_m`` [m] above the surface: ``deep_error`` (the
+    points inside the Brillouin sphere), ``deep_bins`` ({model: {bin: error}} over the radial
+    bins between ``bins_rb`` [R_B], None for an empty bin) and ``deep_bin_points`` ({bin:
+    points}). Errors are rounded to 4 decimals, then to 4 significant digits."""
+    body = truth.body
+    surface = evaluation_sets(body, (), (altitude_m,), seed=seed)[f"h{altitude_m:g}m"]
+    inside_rb = surface[np.linalg.norm(surface, axis=1) < body.brillouin_radius]
+    bins = radial_bins(surface, body.brillouin_radius, bins_rb)
+    filled = {k: v for k, v in bins.items() if len(v)}
+    out: dict = {
+        "deep_error": {},
+        "deep_bins": {},
+        "deep_bin_points": {k: int(len(v)) for k, v in bins.items()},
+    }
+    for name, (model, params) in fitted.items():
+        errors = field_errors(model, params, truth.mascons, {"deep": inside_rb, **filled})
+        deep = {k: round(v, 4) for k, v in errors.items()}
+        out["deep_error"][name] = significant(deep.pop("deep"))
+        out["deep_bins"][name] = {k: significant(deep[k]) if k in deep else None for k in bins}
+    return out
+
+
+def equatorial_error_map(
+    fitted: dict, truth: Truth, extent_rb: float, n: int, patch_models
+) -> dict:
+    """Pointwise relative field errors of fitted models ({name: (model, params)}) against
+    ``truth`` on the n x n equatorial grid out to ``extent_rb`` [R_B] (NaN inside the
+    body), and the patch: the outside points where any of ``patch_models`` errs by more than
+    1. ``axis_m`` is the grid's axis [m]."""
+    body = truth.body
+    points, inside = equatorial_grid(body, extent_rb, n)
+    outside = points[~inside]
+    errors = {}
+    for name, (model, params) in fitted.items():
+        err = np.full(len(points), np.nan)
+        err[~inside] = pointwise_field_errors(model, params, truth.mascons, outside)
+        errors[name] = err
+    patch = np.zeros(len(points), bool)
+    for name in patch_models:
+        patch |= errors[name] > 1.0  # NaN (inside) compares False
+    r = np.linalg.norm(points, axis=1) / body.brillouin_radius
+    return {
+        "errors": errors,
+        "inside": inside,
+        "patch": patch,
+        "axis_m": np.unique(points[:, 0]) * body.units.length_m,
+        "patch_points": int(patch.sum()),
+        "patch_inside_brillouin": significant(np.mean(r[patch] < 1.0)) if patch.any() else None,
+        "patch_median": {
+            k: significant(np.median(e[patch])) if patch.any() else None for k, e in errors.items()
+        },
+    }

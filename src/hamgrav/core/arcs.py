@@ -7,9 +7,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..errors import InputError
 from .mascons import MasconSet
 
-__all__ = ["Arcs", "BodyRecord", "MAX_SEED", "NO_TRUTH", "mesh_digest"]
+__all__ = ["Arcs", "BodyRecord", "MAX_SEED", "NO_TRUTH", "mesh_digest", "join_arcs", "sample_radii"]
 
 #: The ``interior`` of arcs that carry no truth (tracking imported from files).
 NO_TRUTH = "none"
@@ -208,3 +209,58 @@ def _hash_arrays(h, *arrays) -> None:
         canon = np.ascontiguousarray(a, dtype=np.float64 if a.dtype.kind == "f" else np.int64)
         h.update(repr(canon.shape).encode())
         h.update(canon.tobytes())
+
+
+def join_arcs(first: Arcs, second: Arcs) -> Arcs:
+    """``first``'s arcs followed by ``second``'s (same body, units and samples per arc); the
+    second's trajectories are numbered after the first's. Per-trajectory tables are joined
+    key by key, NaN where one side has no such entry (e.g. the orbits' inclinations for the
+    descents)."""
+    if (first.body_name, first.gm_m3_s2, first.spin_period_s) != (
+        second.body_name,
+        second.gm_m3_s2,
+        second.spin_period_s,
+    ):
+        raise InputError("arcs of different bodies or units cannot be joined")
+    n1, n2 = first.n_trajectories, second.n_trajectories
+
+    def column(info: dict, key: str, n: int, like: np.ndarray) -> np.ndarray:
+        if key in info:
+            return np.asarray(info[key], dtype=float)
+        return np.full((n, *np.shape(like)[1:]), np.nan)
+
+    keys = list(first.trajectory_info) + [
+        k for k in second.trajectory_info if k not in first.trajectory_info
+    ]
+    info = {}
+    for key in keys:
+        like = np.asarray(first.trajectory_info.get(key, second.trajectory_info.get(key)))
+        info[key] = np.concatenate(
+            [
+                column(first.trajectory_info, key, n1, like),
+                column(second.trajectory_info, key, n2, like),
+            ]
+        )
+    return replace(
+        first,
+        times=np.concatenate([first.times, second.times]),
+        states=np.concatenate([first.states, second.states]),
+        true_states=np.concatenate([first.true_states, second.true_states]),
+        trajectory=np.concatenate([first.trajectory, second.trajectory + n1]),
+        trajectory_kind=first.trajectory_kind + second.trajectory_kind,
+        trajectory_info=info,
+    )
+
+
+def sample_radii(arcs: Arcs, brillouin_radius: float, floor_rb: float) -> dict:
+    """Radial distribution of the tracked samples [R_B]: min, quartiles, max, the sample
+    count and how many lie below ``floor_rb``."""
+    r = np.linalg.norm(arcs.states[..., :3], axis=-1).ravel() / brillouin_radius
+    q = np.percentile(r, [0, 25, 50, 75, 100])
+    keys = ("min", "q1", "median", "q3", "max")
+    return {
+        **{k: round(float(v), 3) for k, v in zip(keys, q, strict=True)},
+        "n_samples": int(r.size),
+        "floor_rb": floor_rb,
+        "below_floor": int(np.sum(r < floor_rb)),
+    }

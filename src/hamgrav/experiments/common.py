@@ -181,6 +181,18 @@ def committed_holdout(settings: dict) -> dict:
     return {**settings, "validation_fraction": 0.12 if network else 0.0}
 
 
+def row_estimator(
+    settings: dict, *, seed: int, body=None, mapper=map, committed: bool = True
+) -> GravityEstimator:
+    """The estimator of one experiment row (the only place an experiment builds one):
+    ``settings`` are its keywords as a row spells them (``{"term": "sh", "degree": 8}``),
+    ``body`` the truth's body (None: the one the arcs record) and ``mapper`` the map for its
+    independent work. With ``committed`` the row keeps the hold-out its committed results
+    were fitted with (:func:`committed_holdout`); without, the estimator's own default."""
+    keywords = committed_holdout(settings) if committed else settings
+    return GravityEstimator(body=body, seed=seed, mapper=mapper, **keywords)
+
+
 def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> GravityEstimator:
     """Fit one row of an experiment through the estimator (the one fit path), reporting
     progress about every 20 s."""
@@ -194,9 +206,7 @@ def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> Gra
             )
             ctx.say(f"{name}: iteration {iteration} ({costs}, canonical units)")
 
-    estimator = GravityEstimator(
-        body=truth.body, seed=ctx.seed, mapper=ctx.mapper, **committed_holdout(settings)
-    )
+    estimator = row_estimator(settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper)
     estimator.fit(arcs, callback=progress)
     r = estimator.result_
     ctx.say(f"{name}: {r.outcome.value}, {r.iterations} iterations in {r.wall_s:.1f} s")

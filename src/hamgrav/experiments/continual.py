@@ -17,16 +17,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..fit.continual import fit_continual
-from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from ..fit.estimator import NETWORK_WARM_SOLVER
 from ..report.continual import continual_figure, continual_readme
 from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
-    committed_holdout,
     errors_of,
     harmonic_option,
     lm_iterations_option,
     network_best,
+    row_estimator,
     sets_for,
     simulate,
     warm_gate_option,
@@ -98,17 +98,13 @@ class ContinualExperiment(Experiment):
         start = time.perf_counter()
         for settings in models.values():
             # the first fit of a process would otherwise also time heyoka's compilation
-            GravityEstimator(body=truth.body, seed=ctx.seed, **committed_holdout(settings)).compile(
-                arcs
-            )
+            row_estimator(settings, seed=ctx.seed, body=truth.body).compile(arcs)
         ctx.say(f"integrators compiled in {time.perf_counter() - start:.1f} s (not timed)")
         for mode in ("warm", "scratch"):
             for k in range(len(groups)):
                 stages[k][mode] = {}
             for name, settings in models.items():
-                est = GravityEstimator(
-                    body=truth.body, seed=ctx.seed, **committed_holdout(settings)
-                )
+                est = row_estimator(settings, seed=ctx.seed, body=truth.body)
                 records = fit_continual(est, arcs, arriving, warm_start=mode == "warm")
                 for k, r in enumerate(records):
                     stages[k][mode][name] = {

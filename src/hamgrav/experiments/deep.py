@@ -53,14 +53,17 @@ from functools import partial
 
 import numpy as np
 
-from ..bodies.evaluation import equatorial_grid, radial_bins
+from ..bodies.evaluation import (
+    deep_bin_errors,
+    equatorial_error_map,
+    significant,
+)
 from ..bodies.interiors import Truth
-from ..core.arcs import Arcs
-from ..core.fields import pointwise_field_errors
+from ..core.arcs import Arcs, join_arcs, sample_radii
 from ..errors import InputError
 from ..fit.continual import ContinualFit
-from ..fit.design import OrbitPlan, choose_from_plans, orbit_plans
-from ..fit.estimator import NETWORK_WARM_SOLVER, GravityEstimator
+from ..fit.design import d_optimal_campaign, orbit_plans
+from ..fit.estimator import NETWORK_WARM_SOLVER
 from ..report.deep import (
     bins_figure,
     deep_readme,
@@ -74,7 +77,6 @@ from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     campaign_artefacts,
-    committed_holdout,
     errors_of,
     harmonic_option,
     lm_iterations_option,
@@ -83,6 +85,7 @@ from .common import (
     network_best,
     orbits_option,
     radius_rb_option,
+    row_estimator,
     sets_for,
     simulate,
     warm_gate_option,
@@ -97,12 +100,8 @@ __all__ = [
     "SAMPLE_FLOOR_RB",
     "arrival_stages",
     "random_orders",
-    "sample_radii",
     "evaluate",
-    "deep_bins",
     "campaign_descents",
-    "join_arcs",
-    "d_optimal_campaign",
 ]
 
 #: Result key of the network row (the ``network-best`` configuration).
@@ -274,25 +273,6 @@ def random_orders(n_orbits: int, count: int, stages: int, seed: int) -> list[lis
     ]
 
 
-def sample_radii(arcs: Arcs, brillouin_radius: float, floor_rb: float = SAMPLE_FLOOR_RB) -> dict:
-    """Radial distribution of the tracked samples [R_B]: min, quartiles, max, the sample
-    count and how many lie below ``floor_rb``."""
-    r = np.linalg.norm(arcs.states[..., :3], axis=-1).ravel() / brillouin_radius
-    q = np.percentile(r, [0, 25, 50, 75, 100])
-    keys = ("min", "q1", "median", "q3", "max")
-    return {
-        **{k: round(float(v), 3) for k, v in zip(keys, q, strict=True)},
-        "n_samples": int(r.size),
-        "floor_rb": floor_rb,
-        "below_floor": int(np.sum(r < floor_rb)),
-    }
-
-
-def _value(x: float) -> float | None:
-    """A finite error rounded to 4 significant digits, or None (empty set, overflow)."""
-    return float(f"{x:.4g}") if np.isfinite(x) else None
-
-
 def evaluate(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) -> dict:
     """Errors of fitted models ({name: (model, params)}): ``exterior_error`` (mean over the
     shells), ``deep_error`` (the surface-following set inside R_B), ``deep_bins`` ({model:
@@ -301,32 +281,17 @@ def evaluate(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) 
     shells = sets_for(truth, config.shells_rb, (), seed)
     out: dict = {"exterior_error": {}}
     for name, (model, params) in fitted.items():
-        out["exterior_error"][name] = _value(
+        out["exterior_error"][name] = significant(
             np.mean(list(errors_of(model, params, truth, shells).values()))
         )
-    out.update(deep_bins(fitted, truth, config, seed))
-    out["maps"] = _maps(fitted, truth, config)
-    return out
-
-
-def deep_bins(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) -> dict:
-    """The deep-region errors of fitted models ({name: (model, params)}) on the
-    ``altitude_m`` surface-following set: ``deep_error`` (the set inside R_B), ``deep_bins``
-    ({model: {bin: error}}, None for an empty bin) and ``deep_bin_points`` ({bin: points})."""
-    body = truth.body
-    surface = sets_for(truth, (), (config.altitude_m,), seed)[f"h{config.altitude_m:g}m"]
-    inside_rb = surface[np.linalg.norm(surface, axis=1) < body.brillouin_radius]
-    bins = radial_bins(surface, body.brillouin_radius, config.deep_bins_rb)
-    filled = {k: v for k, v in bins.items() if len(v)}
-    out: dict = {
-        "deep_error": {},
-        "deep_bins": {},
-        "deep_bin_points": {k: int(len(v)) for k, v in bins.items()},
-    }
-    for name, (model, params) in fitted.items():
-        deep = errors_of(model, params, truth, {"deep": inside_rb, **filled})
-        out["deep_error"][name] = _value(deep.pop("deep"))
-        out["deep_bins"][name] = {k: _value(deep[k]) if k in deep else None for k in bins}
+    out.update(deep_bin_errors(fitted, truth, config.altitude_m, config.deep_bins_rb, seed))
+    out["maps"] = equatorial_error_map(
+        fitted,
+        truth,
+        config.map_extent_rb,
+        config.map_points,
+        [f"sh{d}" for d in config.map_degrees],
+    )
     return out
 
 
@@ -334,34 +299,6 @@ def _bin_summary(by_bin: dict) -> tuple[float | None, float | None]:
     """(deepest, worst) of a model's bins: the first bin holding points, and the largest."""
     values = [v for v in by_bin.values() if v is not None]
     return (values[0], max(values)) if values else (None, None)
-
-
-def _maps(fitted: dict, truth: Truth, config: DeepExperimentConfig) -> dict:
-    """Pointwise errors of every model on the equatorial grid (NaN inside the body), and
-    the patches: outside points where an SH map model's error exceeds 1."""
-    body = truth.body
-    points, inside = equatorial_grid(body, config.map_extent_rb, config.map_points)
-    outside = points[~inside]
-    errors = {}
-    for name, (model, params) in fitted.items():
-        err = np.full(len(points), np.nan)
-        err[~inside] = pointwise_field_errors(model, params, truth.mascons, outside)
-        errors[name] = err
-    patch = np.zeros(len(points), bool)
-    for d in config.map_degrees:
-        patch |= errors[f"sh{d}"] > 1.0  # NaN (inside) compares False
-    r = np.linalg.norm(points, axis=1) / body.brillouin_radius
-    return {
-        "errors": errors,
-        "inside": inside,
-        "patch": patch,
-        "axis_m": np.unique(points[:, 0]) * body.units.length_m,
-        "patch_points": int(patch.sum()),
-        "patch_inside_brillouin": _value(np.mean(r[patch] < 1.0)) if patch.any() else None,
-        "patch_median": {
-            n: _value(np.median(e[patch])) if patch.any() else None for n, e in errors.items()
-        },
-    }
 
 
 def campaign_descents(truth: Truth, config: DeepCampaignConfig, seed: int) -> Arcs:
@@ -373,102 +310,10 @@ def campaign_descents(truth: Truth, config: DeepCampaignConfig, seed: int) -> Ar
     )
 
 
-def join_arcs(first: Arcs, second: Arcs) -> Arcs:
-    """``first``'s arcs followed by ``second``'s (same body, units and samples per arc); the
-    second's trajectories are numbered after the first's. Per-trajectory tables are joined
-    key by key, NaN where one side has no such entry (e.g. the orbits' inclinations for the
-    descents)."""
-    if (first.body_name, first.gm_m3_s2, first.spin_period_s) != (
-        second.body_name,
-        second.gm_m3_s2,
-        second.spin_period_s,
-    ):
-        raise InputError("arcs of different bodies or units cannot be joined")
-    n1, n2 = first.n_trajectories, second.n_trajectories
-
-    def column(info: dict, key: str, n: int, like: np.ndarray) -> np.ndarray:
-        if key in info:
-            return np.asarray(info[key], dtype=float)
-        return np.full((n, *np.shape(like)[1:]), np.nan)
-
-    keys = list(first.trajectory_info) + [
-        k for k in second.trajectory_info if k not in first.trajectory_info
-    ]
-    info = {}
-    for key in keys:
-        like = np.asarray(first.trajectory_info.get(key, second.trajectory_info.get(key)))
-        info[key] = np.concatenate(
-            [
-                column(first.trajectory_info, key, n1, like),
-                column(second.trajectory_info, key, n2, like),
-            ]
-        )
-    return replace(
-        first,
-        times=np.concatenate([first.times, second.times]),
-        states=np.concatenate([first.states, second.states]),
-        true_states=np.concatenate([first.true_states, second.true_states]),
-        trajectory=np.concatenate([first.trajectory, second.trajectory + n1]),
-        trajectory_kind=first.trajectory_kind + second.trajectory_kind,
-        trajectory_info=info,
-    )
-
-
-def d_optimal_campaign(
-    estimator: GravityEstimator,
-    arcs: Arcs,
-    plans: list[OrbitPlan],
-    sizes: list[int],
-    *,
-    brillouin_radius: float,
-    escape_factor: float = 3.0,
-    mapper=map,
-) -> tuple[ContinualFit, list[dict]]:
-    """The D-optimal campaign: before stage k, ``sizes[k]`` orbits are chosen from the plans
-    not yet flown (:func:`hamgrav.fit.design.choose_from_plans`, under the estimator's current
-    parameters: its seeded initialisation before the first stage, as the accumulated
-    information starts at zero), then their arcs (orbit i of ``plans`` is trajectory i of
-    ``arcs``) are added and the estimator refitted, warm after the first stage. As in the
-    paper the accumulated information is the running sum of each pick's information as
-    predicted when it was picked. Only the plans, the model, its parameters and that sum
-    enter a choice.
-    Returns the continual fit and each stage's choice (picked plan indices, gains, log dets,
-    dropped plans). ``brillouin_radius`` is canonical."""
-    model, _ = estimator.build_model(arcs)
-    theta = estimator.initial_params(model, arcs)
-    run = ContinualFit(estimator, arcs)
-    flown: list[int] = []
-    L_acc = None
-    choices = []
-    for size in sizes:
-        pool = [i for i in range(len(plans)) if i not in flown]
-        if not pool:
-            break
-        choice = choose_from_plans(
-            model,
-            theta,
-            plans,
-            pool=pool,
-            picks=size,
-            L_acc=L_acc,
-            brillouin_radius=brillouin_radius,
-            body_name=arcs.body_name,
-            gm_m3_s2=arcs.gm_m3_s2,
-            spin_period_s=arcs.spin_period_s,
-            escape_factor=escape_factor,
-            mapper=mapper,
-        )
-        L_acc = choice.pop("L_acc")
-        flown += choice["picked"]
-        theta = run.add(arcs.arcs_of(choice["picked"])).result.params
-        choices.append(choice)
-    return run, choices
-
-
 def _stage_errors(model, records, truth: Truth, shells: dict) -> list[float | None]:
     """The mean exterior error (over ``shells``) of every stage's parameters."""
     return [
-        _value(np.mean(list(errors_of(model, r.result.params, truth, shells).values())))
+        significant(np.mean(list(errors_of(model, r.result.params, truth, shells).values())))
         for r in records
     ]
 
@@ -481,7 +326,9 @@ def _fit_record(record) -> dict:
         "wall_s": round(record.result.wall_s, 2),
         "outcome": record.result.outcome.value,
         "warm_started": record.warm_started,
-        "relative_cost": _value(record.relative_cost) if record.relative_cost is not None else None,
+        "relative_cost": significant(record.relative_cost)
+        if record.relative_cost is not None
+        else None,
         "checked_on": record.checked_on,
     }
 
@@ -513,7 +360,7 @@ def _order_unit(unit, *, arcs, truth, settings, sizes, shells, seed, escape_fact
     mean exterior error after each stage, the D-optimal choices and the wall time [s]."""
     kind, groups = unit
     start = time.perf_counter()
-    est = GravityEstimator(body=truth.body, seed=seed, **committed_holdout(settings))
+    est = row_estimator(settings, seed=seed, body=truth.body)
     choices = None
     if kind == "random":
         run = ContinualFit(est, arcs)
@@ -583,7 +430,7 @@ class DeepExperiment(Experiment):
 
         truth, arcs = simulate(config, ctx)
         r_b = truth.body.brillouin_radius
-        radii = sample_radii(arcs, r_b)
+        radii = sample_radii(arcs, r_b, SAMPLE_FLOOR_RB)
         ctx.say(
             f"sample radii [R_B]: {radii['min']:.3f}-{radii['max']:.3f} (median "
             f"{radii['median']:.3f}), {radii['below_floor']} of {radii['n_samples']} below "
@@ -631,9 +478,7 @@ class DeepExperiment(Experiment):
         ]
         finals, after, descent_fits, fits = {}, {}, {}, {}
         for name, settings in rows.items():
-            est = GravityEstimator(
-                body=truth.body, seed=ctx.seed, mapper=ctx.mapper, **committed_holdout(settings)
-            )
+            est = row_estimator(settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper)
             run = ContinualFit(est, all_arcs)
             for new in arriving:
                 run.add(new)
@@ -721,7 +566,7 @@ class DeepExperiment(Experiment):
     def _after_descents(after, summary, truth, shells, config, ctx) -> dict:
         """The deep bins, deep set and exterior error of the models refitted on the
         descents, beside their values before."""
-        ev = deep_bins(after, truth, config, ctx.seed)
+        ev = deep_bin_errors(after, truth, config.altitude_m, config.deep_bins_rb, ctx.seed)
         out = {"deep_bins_after_descents": ev["deep_bins"], "descents_summary": {}}
         for name, (model, params) in after.items():
             deepest, worst = _bin_summary(ev["deep_bins"][name])
@@ -733,7 +578,7 @@ class DeepExperiment(Experiment):
                 "deep_before": summary[name]["deep"],
                 "deep_after": ev["deep_error"][name],
                 "exterior_before": summary[name]["exterior"],
-                "exterior_after": _value(exterior),
+                "exterior_after": significant(exterior),
             }
         ctx.say(
             "after the descents, deepest bin: "
@@ -784,8 +629,8 @@ class DeepExperiment(Experiment):
         curves = {"fixed": fixed}
         if random:
             table = np.array([[np.inf if e is None else e for e in d["errors"]] for d in random])
-            curves["random-best"] = [_value(v) for v in table.min(axis=0)]
-            curves["random-worst"] = [_value(v) for v in table.max(axis=0)]
+            curves["random-best"] = [significant(v) for v in table.min(axis=0)]
+            curves["random-worst"] = [significant(v) for v in table.max(axis=0)]
             ctx.say(
                 f"{len(random)} random orders, exterior error after each stage: "
                 + "; ".join(", ".join(f"{e}" for e in d["errors"]) for d in random)

@@ -41,6 +41,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..bodies.evaluation import deep_bin_errors, significant
+from ..core.arcs import join_arcs, sample_radii
 from ..core.field_problem import FieldProblem
 from ..core.fields import central_potential, perturbing_potential
 from ..core.mascons import mascon_acceleration
@@ -52,16 +54,13 @@ from ..fit.harmonic import HarmonicPenalty
 from ..fit.lm import LevenbergMarquardt
 from ..report.ladder import ladder_figure, ladder_readme
 from .base import Experiment, RunContext, RunOutput
-from .common import committed_holdout, errors_of, network_best, sets_for, simulate
+from .common import committed_holdout, errors_of, network_best, row_estimator, sets_for, simulate
 from .config import label, option
 from .deep import (
+    SAMPLE_FLOOR_RB,
     DeepCampaignConfig,
     _bin_summary,
-    _value,
     campaign_descents,
-    deep_bins,
-    join_arcs,
-    sample_radii,
 )
 
 __all__ = ["DeepLadderConfig", "DeepLadderExperiment", "RUNGS", "oracle_fit"]
@@ -182,17 +181,19 @@ def oracle_fit(
     return (
         model,
         params,
-        {"on_points": _value(on_points), "members": [r.summary() for r in results]},
+        {"on_points": significant(on_points), "members": [r.summary() for r in results]},
     )
 
 
 def _scores(model, params, truth, shells, config, seed) -> dict:
     """Exterior, deep-set, deepest-bin and per-bin errors of one fitted model."""
     exterior = np.mean(list(errors_of(model, params, truth, shells).values()))
-    ev = deep_bins({"m": (model, params)}, truth, config, seed)
+    ev = deep_bin_errors(
+        {"m": (model, params)}, truth, config.altitude_m, config.deep_bins_rb, seed
+    )
     deepest, worst = _bin_summary(ev["deep_bins"]["m"])
     return {
-        "exterior": _value(exterior),
+        "exterior": significant(exterior),
         "deep": ev["deep_error"]["m"],
         "deepest_bin": deepest,
         "worst_bin": worst,
@@ -274,7 +275,7 @@ class DeepLadderExperiment(Experiment):
             network = settings["term"] == "network"
 
             def estimator(settings=settings):
-                return GravityEstimator(body=body, seed=ctx.seed, mapper=ctx.mapper, **settings)
+                return row_estimator(settings, seed=ctx.seed, body=body, mapper=ctx.mapper)
 
             for rung, points in oracle_points.items():
                 if rung not in wanted:
@@ -307,7 +308,7 @@ class DeepLadderExperiment(Experiment):
             "body": config.body,
             "n_arcs": arcs.n_arcs,
             "n_descents": descents.n_arcs,
-            "radius_rb": sample_radii(arcs, body.brillouin_radius),
+            "radius_rb": sample_radii(arcs, body.brillouin_radius, SAMPLE_FLOOR_RB),
             "oracle_points": {"deep": int(len(deep_points)), "arcs": int(len(arc_points))},
             "ladder": ladder,
             "fits": fits,

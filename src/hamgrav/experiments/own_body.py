@@ -39,12 +39,13 @@ from ..core.mascons import mascon_potential
 from ..core.shexpansion import sh_potential
 from ..core.terms import SphericalHarmonics
 from ..errors import InputError
-from ..fit.estimator import GravityEstimator, body_for_model, preset
+from ..fit.estimator import body_for_model, preset
 from ..io.shformats import sh_export, write_icgem
 from ..io.spk import import_spk, write_spk
 from ..report.own_body import own_body_readme
 from ..sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
 from .base import Experiment, RunContext, RunOutput
+from .common import row_estimator
 from .config import ExperimentConfig, label, option
 
 __all__ = ["OwnBodyConfig", "OwnBodyExperiment", "OWN_BODY_ROWS"]
@@ -93,7 +94,7 @@ class OwnBodyConfig(ExperimentConfig):
         expansion of the highest degree)."""
         from ..sizing import fit_bytes, network_parameters
 
-        hidden = GravityEstimator().hidden  # network-best's network: the estimator's default
+        hidden = row_estimator({}, seed=0, committed=False).hidden  # network-best's: the default
         sh = SphericalHarmonics(self.max_degree, 1.0).n_params
         n_params = max(sh, network_parameters(hidden))
         samples = TrackingConfig().samples_per_arc
@@ -213,7 +214,9 @@ class OwnBodyExperiment(Experiment):
             fits, field_error, export_error, exports = {}, {}, {}, {}
             for row in config.rows:
                 start = time.perf_counter()
-                est = GravityEstimator(seed=seed, mapper=ctx.mapper, **row_settings(row, config))
+                est = row_estimator(
+                    row_settings(row, config), seed=seed, mapper=ctx.mapper, committed=False
+                )
                 est.fit(arcs)
                 fitted = est.fitted_
                 fits[row] = {

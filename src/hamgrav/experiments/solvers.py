@@ -17,12 +17,18 @@ import numpy as np
 
 from ..fit.continual import fit_continual
 from ..fit.design import greedy_d_optimal, random_order_logdet, trajectory_informations
-from ..fit.estimator import GravityEstimator
 from ..fit.lm import LevenbergMarquardt
 from ..report.figures import logdet_figure
 from ..report.solvers import solvers_readme
 from .base import Experiment, RunContext, RunOutput
-from .common import CampaignConfig, committed_holdout, errors_of, fit, sets_for, simulate
+from .common import (
+    CampaignConfig,
+    errors_of,
+    fit,
+    row_estimator,
+    sets_for,
+    simulate,
+)
 from .config import option
 
 __all__ = ["SolverExperimentConfig", "SolverExperiment"]
@@ -92,7 +98,7 @@ class SolverExperiment(Experiment):
         ):
             out = {}
             for warm in (True, False):
-                est = GravityEstimator(body=truth.body, seed=seed, **committed_holdout(settings))
+                est = row_estimator(settings, seed=seed, body=truth.body)
                 records = fit_continual(est, arcs, stage_arcs, warm_start=warm)
                 out["warm" if warm else "scratch"] = [
                     {**r.summary(), **errors_of(est.model_, r.result.params, truth, r12)}

@@ -44,8 +44,11 @@ from ..core.propagation import propagate_batch
 from ..errors import InputError
 from ..sim.tracking import OrbitFamily, TrackingConfig, arc_start_times, draw_orbit_start
 from ..units import CanonicalUnits
+from .continual import ContinualFit
+from .estimator import GravityEstimator
 
 __all__ = [
+    "d_optimal_campaign",
     "OrbitPlan",
     "orbit_plans",
     "predicted_arcs",
@@ -507,3 +510,54 @@ def select_orbits(
             }
         )
     return rows
+
+
+def d_optimal_campaign(
+    estimator: GravityEstimator,
+    arcs: Arcs,
+    plans: list[OrbitPlan],
+    sizes: list[int],
+    *,
+    brillouin_radius: float,
+    escape_factor: float = 3.0,
+    mapper=map,
+) -> tuple[ContinualFit, list[dict]]:
+    """The D-optimal campaign: before stage k, ``sizes[k]`` orbits are chosen from the plans
+    not yet flown (:func:`hamgrav.fit.design.choose_from_plans`, under the estimator's current
+    parameters: its seeded initialisation before the first stage, as the accumulated
+    information starts at zero), then their arcs (orbit i of ``plans`` is trajectory i of
+    ``arcs``) are added and the estimator refitted, warm after the first stage. As in the
+    paper the accumulated information is the running sum of each pick's information as
+    predicted when it was picked. Only the plans, the model, its parameters and that sum
+    enter a choice.
+    Returns the continual fit and each stage's choice (picked plan indices, gains, log dets,
+    dropped plans). ``brillouin_radius`` is canonical."""
+    model, _ = estimator.build_model(arcs)
+    theta = estimator.initial_params(model, arcs)
+    run = ContinualFit(estimator, arcs)
+    flown: list[int] = []
+    L_acc = None
+    choices = []
+    for size in sizes:
+        pool = [i for i in range(len(plans)) if i not in flown]
+        if not pool:
+            break
+        choice = choose_from_plans(
+            model,
+            theta,
+            plans,
+            pool=pool,
+            picks=size,
+            L_acc=L_acc,
+            brillouin_radius=brillouin_radius,
+            body_name=arcs.body_name,
+            gm_m3_s2=arcs.gm_m3_s2,
+            spin_period_s=arcs.spin_period_s,
+            escape_factor=escape_factor,
+            mapper=mapper,
+        )
+        L_acc = choice.pop("L_acc")
+        flown += choice["picked"]
+        theta = run.add(arcs.arcs_of(choice["picked"])).result.params
+        choices.append(choice)
+    return run, choices
