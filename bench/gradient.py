@@ -1,11 +1,11 @@
 """Throughput of the cost gradient A^T r (what first-order training needs): the adjoint
-(backward costate pass, hamgrav.core.propagation.adjoint_gradient) against the forward
-sensitivities (the design matrix contracted with the residuals), and the full normal
+(the costate from the state transition matrix, core.propagation.adjoint_gradient) against
+the forward sensitivities (the design matrix contracted with the residuals), and the full normal
 equations, on the 112 Itokawa arcs of the paper's descent geometry (16 orbits 1.2-2.0 R_B,
 10-80 deg, 7 arcs of 40 samples at 14 s; a cheap 100-mascon truth). Each figure is the best
 of ``--repeat`` calls after a first call that compiles; the two gradients are compared.
 
-    python bench/gradient.py [--hidden 24,24 16,16] [--adjoint-tol 1e-4] [--repeat 3] [--json]
+    python bench/gradient.py [--hidden 24,24 16,16] [--adjoint-tol 1e-8] [--repeat 3] [--json]
 """
 
 from __future__ import annotations

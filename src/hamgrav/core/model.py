@@ -35,8 +35,7 @@ __all__ = [
     "TRUTH_TOLERANCE",
     "CompiledIntegrators",
     "compiled_integrators",
-    "adjoint_system",
-    "compiled_adjoint",
+    "parameter_rate_function",
     "field_function",
     "evaluate_field",
     "laplacian_function",
@@ -239,56 +238,26 @@ def compiled_integrators(
     return _cached((model.key(), "batch" if batch else "scalar", kind, float(tol), width), build)
 
 
-def adjoint_system(model: Model) -> list[tuple[hy.expression, hy.expression]]:
-    """The adjoint (costate) equations of ``model``'s dynamics x' = f(x, p) for the gradient of
-    a sum of sample costs with respect to the runtime parameters p: the state x (6), its
-    costate lam' = -(df/dx)^T lam (6) and the accumulator mu' = -(df/dp)^T lam (one per
-    runtime parameter). Integrated backward from the last sample (lam = dJ/dx there, mu = 0),
-    with lam += dJ/dx_k at every earlier sample, mu at the first sample is dJ/dp for an arc
-    whose initial state does not depend on p. Zero entries of the Jacobians are left out."""
-    sys = model.system()
-    xs = [v for v, _ in sys]
-    n_par = model.n_system_params
-    jac = hy.diff_tensors(
-        [e for _, e in sys], diff_args=[*xs, *(hy.par[j] for j in range(n_par))], diff_order=1
-    ).jacobian
-    lam = list(hy.make_vars(*(f"adjoint_lam{i}" for i in range(6))))
-    mu = list(hy.make_vars(*(f"adjoint_mu{j}" for j in range(n_par))))
-    zero = hy.expression(0.0)
-
-    def minus_transpose_times_lam(column: int) -> hy.expression:
-        terms = [jac[i, column] * lam[i] for i in range(6) if jac[i, column] != zero]
-        return -hy.sum(terms) if terms else zero
-
-    return (
-        list(sys)
-        + [(lam[j], minus_transpose_times_lam(j)) for j in range(6)]
-        + [(mu[j], minus_transpose_times_lam(6 + j)) for j in range(n_par)]
-    )
-
-
-def compiled_adjoint(model: Model, tol: float) -> CompiledIntegrators:
-    """The (cached) batch-mode Taylor integrator of :func:`adjoint_system`: state
-    (x, lam, mu), 12 + n_system_params variables, the runtime parameters as its ``pars``."""
+def parameter_rate_function(model: Model):
+    """Compiled (cached) rates of the adjoint's parameter accumulator, -(df/dp)^T lam, one per
+    runtime parameter: a heyoka ``cfunc`` with inputs (x (6), lam (6)) and the runtime
+    parameters as its ``pars``. The gradient of the cost is minus its integral over each arc
+    (quadrature at points of the backward pass's dense output)."""
 
     def build():
-        n_par = model.n_system_params
-        if n_par == 0:
-            raise ValueError("a model with no runtime parameters has no parameter gradient")
-        width = int(hy.recommended_simd_size())
-        state = np.zeros((12 + n_par, width))
-        state[0] = state[4] = 1.0
-        return CompiledIntegrators(
-            hy.taylor_adaptive_batch(
-                adjoint_system(model),
-                state,
-                tol=tol,
-                compact_mode=True,
-                pars=np.zeros((n_par, width)),
-            )
+        sys = model.system()
+        xs = [v for v, _ in sys]
+        lam = list(hy.make_vars(*(f"adjoint_lam{i}" for i in range(6))))
+        # -(df/dp)^T lam is minus the gradient of the one scalar lam . f: one reverse sweep,
+        # cheaper to evaluate than the Jacobian's columns contracted one by one
+        lam_dot_f = hy.sum([v * e for v, (_, e) in zip(lam, sys, strict=True)])
+        params = [hy.par[j] for j in range(model.n_system_params)]
+        grad = hy.diff_tensors([lam_dot_f], diff_args=params, diff_order=1).jacobian
+        return hy.cfunc(
+            [-grad[0, j] for j in range(len(params))], vars=[*xs, *lam], compact_mode=True
         )
 
-    return _cached((model.key(), "adjoint-batch", float(tol)), build)
+    return _cached((model.key(), "parameter-rates"), build)
 
 
 def field_function(model: Model, which: str = "learnable"):

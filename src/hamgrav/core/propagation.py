@@ -200,9 +200,8 @@ class AdjointGradient:
             ``per_arc``).
         per_arc: (n, n_system_params - n_shared) the per-trajectory parameters' part of each
             arc's gradient (columns from ``n_shared`` on), for the caller to scatter.
-        ok, exceeded_steps: (n,) as in :class:`BatchPropagation`.
-        anchor_miss: (n,) the backward pass's own error: |x_back(t_0) - x(t_0)| / |x(t_0)|.
-        retried: (n,) arcs whose backward pass ran again at the tight tolerance.
+        ok, exceeded_steps: (n,) as in :class:`BatchPropagation` (an arc is ok when both its
+            forward pass and its costate pass ended well).
     """
 
     costs: np.ndarray
@@ -210,26 +209,47 @@ class AdjointGradient:
     per_arc: np.ndarray
     ok: np.ndarray
     exceeded_steps: np.ndarray
-    anchor_miss: np.ndarray
-    retried: np.ndarray
 
 
-#: Tolerance of the adjoint's backward pass. It stops at every sample (the costate jumps
-#: there), so its steps are the sample spacing, far shorter than the steps its order would
-#: allow: at 1e-4 (Taylor order 6 instead of 13 at 1e-10) the gradient of the 112 Itokawa
-#: arcs agrees with the forward sensitivities' to 6e-13 relative, and the backward state
-#: returns to its anchor within 2e-14. Arcs whose samples are far apart take long steps; an
-#: arc whose backward state misses its anchor by more than :data:`ADJOINT_ANCHOR_MISS` is
-#: run again at the forward pass's tolerance.
-ADJOINT_TOLERANCE = 1e-4
-#: Relative miss of the backward pass's state at the first sample above which an arc's
-#: adjoint runs again at the tight tolerance. The gradient's error runs about 100 times the
-#: state's (three samples 0.04 time units apart: miss 4e-11, gradient 7e-9 relative): at
-#: 1e-12 those arcs all run again (gradient within 2e-13), the 40-sample arcs none.
-ADJOINT_ANCHOR_MISS = 1e-12
-#: Relative miss at the tight tolerance above which an arc's backward pass has failed (it
-#: did not integrate back to its first sample): the arc is reported, not summed.
-ADJOINT_FAILED_MISS = 1e-8
+#: Tolerance of the costate pass (the state and its transition matrix, 42 variables, over
+#: each whole arc). The costs come from the forward pass at the fit's tolerance; only the
+#: gradient depends on this one: on the 112 Itokawa arcs it agrees with the forward
+#: sensitivities' to 4e-13 relative at 1e-8 (4e-10 at 1e-6, 2e-8 at 1e-4).
+ADJOINT_TOLERANCE = 1e-8
+#: Gauss-Legendre nodes per piece of an interval between samples at which the parameter
+#: rates are integrated (exact for polynomials of degree 2 * nodes - 1): on the 112 Itokawa
+#: arcs (14 s apart, one piece each) one node leaves 6e-7 relative, two 2e-12, three the
+#: tolerance's floor.
+ADJOINT_QUADRATURE_NODES = 3
+#: Longest piece of an interval between samples, in radians of the fastest motion along the
+#: arc (see :func:`_quadrature`); the quadrature's error falls as its sixth power.
+ADJOINT_QUADRATURE_PHASE = 0.02
+
+
+def _quadrature(times: np.ndarray, states: np.ndarray) -> tuple:
+    """Gauss-Legendre nodes for the integral of the parameter rates between samples: interval
+    k (between samples k and k + 1) is cut into as many equal pieces as its fastest arc needs
+    for each piece to span at most :data:`ADJOINT_QUADRATURE_PHASE` of the motion at the
+    arc's smallest radius (canonical rate max(1, r^-3/2): the spin's or the orbit's), with
+    :data:`ADJOINT_QUADRATURE_NODES` nodes in each piece. Every arc gets the same node layout
+    (the lanes of a SIMD batch share one grid shape).
+
+    Returns (node times (n, k), each node's interval (k,), each node's weight (n, k))."""
+    nodes, weights = np.polynomial.legendre.leggauss(ADJOINT_QUADRATURE_NODES)
+    radius = np.linalg.norm(states[..., :3], axis=-1)
+    smallest = np.min(np.where(np.isfinite(radius), radius, np.inf), axis=1)
+    rate = np.maximum(1.0, np.where(np.isfinite(smallest), smallest, 1.0) ** -1.5)
+    span = times[:, 1:] - times[:, :-1]  # (n, m - 1)
+    need = np.ceil(span * rate[:, None] / ADJOINT_QUADRATURE_PHASE)
+    pieces = np.maximum(need.max(axis=0, initial=1), 1).astype(int)
+    interval = np.repeat(np.arange(span.shape[1]), pieces * len(nodes))
+    # each node's place in its interval, in (0, 1): its piece, then the node in the piece
+    piece = np.concatenate([np.repeat(np.arange(k), len(nodes)) for k in pieces])
+    per_piece = np.repeat(pieces, pieces * len(nodes))
+    place = (piece + 0.5 + 0.5 * np.tile(nodes, int(pieces.sum()))) / per_piece
+    node_times = times[:, interval] + span[:, interval] * place
+    node_weights = 0.5 * span[:, interval] * np.tile(weights, int(pieces.sum())) / per_piece
+    return node_times, interval, node_weights
 
 
 def adjoint_gradient(
@@ -248,14 +268,24 @@ def adjoint_gradient(
 ) -> AdjointGradient:
     """The cost 0.5 sum |W (y - x)|^2 of arcs started at ``states0`` (n, 6) on the grids
     ``times`` (n, m) against ``observed`` states y (n, m, 6), and its gradient with respect to
-    the runtime parameters (n_system_params, n), by the adjoint method: the states forward at
-    ``tol`` (:func:`propagate_batch`), then the costate and the parameter accumulator backward
-    (:func:`hamgrav.core.model.adjoint_system`) at ``adjoint_tol`` (default
-    :data:`ADJOINT_TOLERANCE`), stopping at every sample.
-    Memory: the states and one SIMD batch of 12 + n_system_params variables per thread, never
-    a sensitivity per sample. The first ``n_shared`` runtime parameters are shared by all arcs
-    (their gradients summed); the rest are per arc (returned in ``per_arc``)."""
-    from .model import compiled_adjoint
+    the runtime parameters (n_system_params, n), by the adjoint method.
+
+    The states come forward at ``tol`` (:func:`propagate_batch`), giving the costs and the
+    costate's jumps dJ/dx_k at the samples. The costate lam' = -(df/dx)^T lam is linear, so
+    between samples t_k and t_k+1 it is lam(t) = Phi(t)^-T sum_{j > k} Phi(t_j)^T dJ/dx_j,
+    with Phi the state transition matrix from the arc's start (symplectic, so inverted by
+    transposition: the dynamics are Hamilton's equations in canonical coordinates). One
+    forward pass of the state and Phi (42 variables, at ``adjoint_tol``, default
+    :data:`ADJOINT_TOLERANCE`) over each whole arc gives them at every sample and at the
+    quadrature's nodes between samples (dense output: the steps are not cut at the samples).
+    The gradient is the integral of (df/dp)^T lam, by Gauss-Legendre quadrature
+    (:func:`_quadrature`) of :func:`hamgrav.core.model.parameter_rate_function` (one reverse
+    sweep of lam . f per node).
+    Memory: the states, and per thread one SIMD batch's 42 variables at the samples and
+    nodes and their rates (n_system_params per node); never a sensitivity per sample. The
+    first ``n_shared`` runtime parameters are shared by all arcs (their gradients summed);
+    the rest are per arc (returned in ``per_arc``)."""
+    from .model import parameter_rate_function
 
     times = np.asarray(times, dtype=float)
     observed = np.asarray(observed, dtype=float)
@@ -271,96 +301,86 @@ def adjoint_gradient(
     kicks = -(whitened if whitening is None else whitened @ whitening)
     n_par = model.n_system_params
     per_arc = np.zeros((n, n_par - n_shared))
-    miss = np.full(n, np.nan)
     ok = forward.ok.copy()
     exceeded = forward.exceeded_steps.copy()
-    retried = np.zeros(n, bool)
     # each chunk's sum of the shared gradient, added up in a fixed order at the end: the
     # threads finish in any order, and a sum must not depend on it
-    partial: dict[tuple[int, int], np.ndarray] = {}
+    partial: dict[int, np.ndarray] = {}
     lock = threading.Lock()
+    rates = parameter_rate_function(model)
+    n_rate_pars = rates.nparams  # a cfunc counts parameters up to the last one it uses
+    node_times, node_interval, node_weights = _quadrature(times, forward.states)
+    n_nodes = node_times.shape[1]
+    # each arc's grid: sample k, then the nodes between it and sample k + 1, ..., the last
+    order = np.argsort(np.concatenate([np.arange(n_m) - 0.5, node_interval + 0.0]), kind="stable")
+    grid = np.concatenate([times, node_times], axis=1)[:, order]
+    is_sample = order < n_m
 
-    def backward(ta, sel: np.ndarray):
-        """(the lanes' final (x, lam, mu) (n_state, len(sel)), which lanes ended well,
-        whether the step limit stopped them)."""
-        width = ta.batch_size
-        pad = np.concatenate([sel, np.repeat(sel[-1:], width - len(sel))])
-        ta.set_time(times[pad, -1].copy())
+    def gradient_of(ta, sel: np.ndarray):
+        """(the lanes' gradients (n_par, len(sel)), which lanes ended well, whether the step
+        limit stopped them)."""
+        width, lanes = ta.batch_size, len(sel)
+        pad = np.concatenate([sel, np.repeat(sel[-1:], width - lanes)])
+        ta.set_time(times[pad, 0].copy())
         st = ta.state
-        st[:] = 0.0
-        st[:6] = forward.states[pad, -1].T
-        st[6:12] = kicks[pad, -1].T
+        st[:6] = states0[pad].T
+        st[6:] = np.eye(6).reshape(36, 1)
         ta.pars[:] = runtime_params[:, pad]
-        limit = _StepLimit(None if max_steps is None else max_steps * n_m)
-        good = np.ones(len(sel), bool)
-        for k in range(n_m - 2, -1, -1):
-            ta.propagate_until(times[pad, k].copy(), callback=limit)
-            if limit.exceeded:
-                return None, np.zeros(len(sel), bool), True
-            reached = [res[0] == hy.taylor_outcome.time_limit for res in ta.propagate_res]
-            good &= np.asarray(reached[: len(sel)])
-            if k:
-                st[6:12] += kicks[pad, k].T
-        out = st[:, : len(sel)].copy()
-        return out, good & np.all(np.isfinite(out), axis=0), False
-
-    def accumulate(key: tuple[int, int], sel: np.ndarray, final: bool, run) -> bool:
-        """Keep the lanes' gradients; False when their backward pass must run again."""
-        out, good, stopped = run
-        if out is not None:
-            start = states0[sel]
-            lane_miss = np.linalg.norm(out[:6].T - start, axis=1) / np.linalg.norm(start, axis=1)
-            # a lane far off its anchor at the tight tolerance did not integrate back
-            good &= lane_miss <= (ADJOINT_FAILED_MISS if final else ADJOINT_ANCHOR_MISS)
-        if not final and not good.all():
-            return False
-        with lock:
-            ok[sel] &= good
-            exceeded[sel] |= stopped
-            if out is not None:
-                miss[sel] = lane_miss
-                per_arc[sel] = out[12 + n_shared :].T
-                partial[key] = out[12 : 12 + n_shared, good].sum(axis=1)
-        return True
+        limit = _StepLimit(max_steps)
+        out = ta.propagate_grid(np.ascontiguousarray(grid[pad].T), callback=limit)[-1]
+        if limit.exceeded or out.shape[0] != grid.shape[1]:
+            return None, np.zeros(lanes, bool), limit.exceeded
+        out = out[..., :lanes]
+        x = out[:, :6].transpose(2, 0, 1)  # (lanes, grid, 6)
+        phi = out[:, 6:].reshape(-1, 6, 6, lanes).transpose(3, 0, 1, 2)  # (lanes, grid, 6, 6)
+        jumps = np.einsum("lkij,lki->lkj", phi[:, is_sample], kicks[sel])  # Phi_k^T dJ/dx_k
+        after = np.cumsum(jumps[:, ::-1], axis=1)[:, ::-1][:, 1:]  # sum over j > k
+        # Phi is symplectic (Hamilton's equations in canonical (q, p)): Phi^-T = -J Phi J,
+        # so lam = Phi^-T c is (-v_p, v_q) for v = Phi (c_p, -c_q), with no solve
+        c = after[:, node_interval]  # (lanes, nodes, 6)
+        v = np.einsum(
+            "lnij,lnj->lni", phi[:, ~is_sample], np.concatenate([c[..., 3:], -c[..., :3]], axis=-1)
+        )
+        lam = np.concatenate([-v[..., 3:], v[..., :3]], axis=-1)
+        points = np.concatenate([x[:, ~is_sample], lam], axis=-1).reshape(-1, 12).T
+        extra = {"time": node_times[sel].ravel()} if rates.is_time_dependent else {}
+        if n_rate_pars:
+            extra["pars"] = np.repeat(runtime_params[:n_rate_pars, sel], n_nodes, axis=1)
+        values = rates(np.ascontiguousarray(points), **extra)
+        gradient = -np.einsum("plj,lj->pl", values.reshape(-1, lanes, n_nodes), node_weights[sel])
+        return (
+            gradient,
+            np.all(np.isfinite(gradient), axis=0) & np.all(np.isfinite(lam), axis=(1, 2)),
+            False,
+        )
 
     pending = np.flatnonzero(forward.ok)
     adjoint_tol = ADJOINT_TOLERANCE if adjoint_tol is None else adjoint_tol
-    passes = (adjoint_tol, tol) if adjoint_tol > tol else (adjoint_tol,)
-    for number, adj_tol in enumerate(passes):
-        final = number == len(passes) - 1
-        compiled = compiled_adjoint(model, adj_tol)
-        width = compiled.integrators[0].batch_size
-        chunks = [pending[i : i + width] for i in range(0, len(pending), width)]
-        retry: list[np.ndarray] = []
-        if chunks:
-            n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(chunks)))
+    compiled = compiled_integrators(model, variational=True, wrt="state", tol=adjoint_tol)
+    width = compiled.integrators[0].batch_size
+    chunks = [pending[i : i + width] for i in range(0, len(pending), width)]
+    if chunks and n_m > 1:
+        n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(chunks)))
 
-            def work(
-                ta,
-                worker,
-                chunks=chunks,
-                final=final,
-                n_threads=n_threads,
-                retry=retry,
-                number=number,
-            ):
-                for c in range(worker, len(chunks), n_threads):
-                    run = backward(ta, chunks[c])
-                    if not accumulate((number, c), chunks[c], final, run):
-                        with lock:
-                            retry.append(chunks[c])
+        def work(ta, worker):
+            for c in range(worker, len(chunks), n_threads):
+                sel = chunks[c]
+                gradient, good, stopped = gradient_of(ta, sel)
+                with lock:
+                    ok[sel] &= good
+                    exceeded[sel] |= stopped
+                    if gradient is not None:
+                        per_arc[sel] = gradient[n_shared:].T
+                        partial[c] = gradient[:n_shared, good].sum(axis=1)
 
-            _over_threads(compiled, n_threads, work)
-        if not retry:
-            break
-        pending = np.sort(np.concatenate(retry))
-        retried[pending] = True
+        _over_threads(compiled, n_threads, work)
     gradient = np.zeros(n_par)
     for key in sorted(partial):
         gradient[:n_shared] += partial[key]
+    per_arc[~ok] = 0.0
     gradient[n_shared:] = per_arc[ok].sum(axis=0)
     costs[~ok] = np.nan
-    return AdjointGradient(costs, gradient, per_arc, ok, exceeded, miss, retried)
+    return AdjointGradient(costs, gradient, per_arc, ok, exceeded)
 
 
 def propagate_scalar(
