@@ -1674,7 +1674,17 @@ app.add_typer(experiment_app, name="experiment")
 
 
 def _run_and_report(
-    experiment, config, *, seed, repeat, output, workers, scheduler, command, max_memory=None
+    experiment,
+    config,
+    *,
+    seed,
+    repeat,
+    output,
+    workers,
+    scheduler,
+    command,
+    max_memory=None,
+    distribute_fits=False,
 ):
     from .experiments.runner import run_experiment
 
@@ -1689,6 +1699,7 @@ def _run_and_report(
         command=command,
         say=_say,
         max_memory=max_memory,
+        distribute_fits=distribute_fits,
     )
     return report, outputs
 
@@ -1702,11 +1713,20 @@ def _experiment_command(experiment):
         given = dict(kwargs)
         runner = {
             k: kwargs.pop(k)
-            for k in ("config", "seed", "repeat", "output", "workers", "scheduler", "max_memory")
+            for k in (
+                "config",
+                "seed",
+                "repeat",
+                "output",
+                "workers",
+                "scheduler",
+                "max_memory",
+                "distribute_fits",
+            )
         }
         given.pop("max_memory")  # a limit of this machine, not of the results: not recorded
         given["output"] = runner["output"] or experiment.default_output
-        for name, default in (("repeat", 1), ("workers", 0)):
+        for name, default in (("repeat", 1), ("workers", 0), ("distribute_fits", False)):
             if given[name] == default:
                 given[name] = None
         base = config_type.from_toml(runner["config"]) if runner["config"] else defaults
@@ -1730,6 +1750,7 @@ def _experiment_command(experiment):
             scheduler=runner["scheduler"],
             command=_command_line(["experiment", experiment.name], given),
             max_memory=runner["max_memory"],
+            distribute_fits=runner["distribute_fits"],
         )
         console.print(f"wrote {output}/results.json, README.md and figures ({report['wall_s']} s)")
 
@@ -1772,6 +1793,13 @@ def _experiment_params(experiment) -> list[inspect.Parameter]:
         ("output", Path | None, None, f"Output folder [default: {experiment.default_output}]."),
         ("workers", int, 0, "Run on a Dask LocalCluster of N worker processes (0: in-process)."),
         ("scheduler", str | None, None, "Address of an existing Dask scheduler."),
+        (
+            "distribute_fits",
+            bool,
+            False,
+            "Send each fit's arcs to the cluster's workers, which compute its sums over arcs "
+            "(with --workers or --scheduler; numbers as in-process, to rounding).",
+        ),
         (
             "max_memory",
             str | None,

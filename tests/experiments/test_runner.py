@@ -250,3 +250,59 @@ def test_runs_on_other_seeds_merge_into_the_run_of_all_seeds(tmp_path):
         app, ["experiment", "merge", str(tmp_path / "s4"), str(tmp_path / "s5"), "-o", "bad"]
     )
     assert result.exit_code == 2 and "another config" in result.output
+
+
+def _numbers(value, path=""):
+    """Every number in ``value`` by its path (booleans and strings as they are)."""
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            out.update(_numbers(v, f"{path}/{k}"))
+        return out
+    if isinstance(value, list):
+        out = {}
+        for i, v in enumerate(value):
+            out.update(_numbers(v, f"{path}/{i}"))
+        return out
+    return {path: value}
+
+
+#: How a fit stopped: at its minimum, sums that differ in the last bits may end it by one
+#: rule or the other (relative change 2e-16 < 1e-6 at iteration 16, or the damping saturated
+#: at 21, with the same cost to 1e-16); the costs and everything computed from them are
+#: compared.
+STOPPING_RECORD = {"outcome", "message", "iterations", "best_iteration"}
+
+
+def test_fits_distributed_over_the_cluster_give_the_in_process_numbers(tmp_path):
+    """One repetition whose every fit sends its arcs to a 2-worker LocalCluster
+    (DistributedArcProblem): the numbers of the in-process run, to rounding (the sums over
+    arcs are added chunk by chunk, not 64 arcs at a time)."""
+    local, _ = run_experiment("descent", TINY, seed=3, output=tmp_path / "a", verbose=False)
+    spread, _ = run_experiment(
+        "descent",
+        TINY,
+        seed=3,
+        workers=2,
+        distribute_fits=True,
+        output=tmp_path / "b",
+        verbose=False,
+    )
+    assert spread["dispatch"] == "LocalCluster of 2 workers, each fit's arcs on the workers"
+    a = _numbers(_without_timing(local["repetitions"]))
+    b = _numbers(_without_timing(spread["repetitions"]))
+    assert a.keys() == b.keys()
+    for key, value in a.items():
+        if key.rsplit("/", 1)[-1] in STOPPING_RECORD:
+            continue
+        if isinstance(value, float):
+            assert b[key] == pytest.approx(value, rel=1e-6, abs=1e-9), key
+        else:
+            assert b[key] == value, key
+    # and the sums were formed on the workers: added chunk by chunk, their last bits differ
+    assert any(a[k] != b[k] for k in a if isinstance(a[k], float))
+
+
+def test_distributed_fits_need_a_cluster():
+    with pytest.raises(InputError, match="--distribute-fits .* give --workers N"):
+        run_experiment("descent", TINY, distribute_fits=True)

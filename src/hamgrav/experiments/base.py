@@ -32,13 +32,16 @@ def _silent(text: str) -> None:
 class RunContext:
     """Everything a repetition uses besides its config, as plain values: its ``seed``, the
     body-data folder (``bodies_folder``, None: the default), ``say(text)`` for progress
-    (rounded figures with units) and ``mapper`` for independent work units (Kaula scans,
-    candidate pools): builtin ``map``, or the cluster's when there is one."""
+    (rounded figures with units), ``mapper`` for independent work units (Kaula scans,
+    candidate pools): builtin ``map``, or the cluster's when there is one, and
+    ``fit_client``: the ``dask.distributed`` Client whose workers compute each fit's sums
+    over arcs (None: in this process)."""
 
     seed: int
     bodies_folder: str | None = None
     say: Callable[[str], None] = _silent
     mapper: Callable = map
+    fit_client: object | None = None
 
 
 class Experiment(ABC):

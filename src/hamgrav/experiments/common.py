@@ -182,15 +182,17 @@ def committed_holdout(settings: dict) -> dict:
 
 
 def row_estimator(
-    settings: dict, *, seed: int, body=None, mapper=map, committed: bool = True
+    settings: dict, *, seed: int, body=None, mapper=map, client=None, committed: bool = True
 ) -> GravityEstimator:
     """The estimator of one experiment row (the only place an experiment builds one):
     ``settings`` are its keywords as a row spells them (``{"term": "sh", "degree": 8}``),
-    ``body`` the truth's body (None: the one the arcs record) and ``mapper`` the map for its
-    independent work. With ``committed`` the row keeps the hold-out its committed results
-    were fitted with (:func:`committed_holdout`); without, the estimator's own default."""
+    ``body`` the truth's body (None: the one the arcs record), ``mapper`` the map for its
+    independent work and ``client`` the Dask client of a distributed fit (None: in this
+    process; see :attr:`RunContext.fit_client`). With ``committed`` the row keeps the
+    hold-out its committed results were fitted with (:func:`committed_holdout`); without,
+    the estimator's own default."""
     keywords = committed_holdout(settings) if committed else settings
-    return GravityEstimator(body=body, seed=seed, mapper=mapper, **keywords)
+    return GravityEstimator(body=body, seed=seed, mapper=mapper, client=client, **keywords)
 
 
 def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> GravityEstimator:
@@ -206,7 +208,9 @@ def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> Gra
             )
             ctx.say(f"{name}: iteration {iteration} ({costs}, canonical units)")
 
-    estimator = row_estimator(settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper)
+    estimator = row_estimator(
+        settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper, client=ctx.fit_client
+    )
     estimator.fit(arcs, callback=progress)
     r = estimator.result_
     ctx.say(f"{name}: {r.outcome.value}, {r.iterations} iterations in {r.wall_s:.1f} s")

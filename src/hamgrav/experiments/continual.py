@@ -98,13 +98,15 @@ class ContinualExperiment(Experiment):
         start = time.perf_counter()
         for settings in models.values():
             # the first fit of a process would otherwise also time heyoka's compilation
-            row_estimator(settings, seed=ctx.seed, body=truth.body).compile(arcs)
+            row_estimator(settings, seed=ctx.seed, body=truth.body, client=ctx.fit_client).compile(
+                arcs
+            )
         ctx.say(f"integrators compiled in {time.perf_counter() - start:.1f} s (not timed)")
         for mode in ("warm", "scratch"):
             for k in range(len(groups)):
                 stages[k][mode] = {}
             for name, settings in models.items():
-                est = row_estimator(settings, seed=ctx.seed, body=truth.body)
+                est = row_estimator(settings, seed=ctx.seed, body=truth.body, client=ctx.fit_client)
                 records = fit_continual(est, arcs, arriving, warm_start=mode == "warm")
                 for k, r in enumerate(records):
                     stages[k][mode][name] = {

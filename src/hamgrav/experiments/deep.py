@@ -478,7 +478,9 @@ class DeepExperiment(Experiment):
         ]
         finals, after, descent_fits, fits = {}, {}, {}, {}
         for name, settings in rows.items():
-            est = row_estimator(settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper)
+            est = row_estimator(
+                settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper, client=ctx.fit_client
+            )
             run = ContinualFit(est, all_arcs)
             for new in arriving:
                 run.add(new)

@@ -275,7 +275,9 @@ class DeepLadderExperiment(Experiment):
             network = settings["term"] == "network"
 
             def estimator(settings=settings):
-                return row_estimator(settings, seed=ctx.seed, body=body, mapper=ctx.mapper)
+                return row_estimator(
+                    settings, seed=ctx.seed, body=body, mapper=ctx.mapper, client=ctx.fit_client
+                )
 
             for rung, points in oracle_points.items():
                 if rung not in wanted:

@@ -215,7 +215,11 @@ class OwnBodyExperiment(Experiment):
             for row in config.rows:
                 start = time.perf_counter()
                 est = row_estimator(
-                    row_settings(row, config), seed=seed, mapper=ctx.mapper, committed=False
+                    row_settings(row, config),
+                    seed=seed,
+                    mapper=ctx.mapper,
+                    client=ctx.fit_client,
+                    committed=False,
                 )
                 est.fit(arcs)
                 fitted = est.fitted_

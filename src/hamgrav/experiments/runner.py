@@ -74,9 +74,12 @@ def run_unit(
     verbose: bool = False,
     prefix: str = "",
     nested: bool = False,
+    distribute_fits: bool = False,
 ) -> RunOutput:
     """One repetition as a pure function of plain data (the Dask work unit); with ``nested``
-    its own independent work (Kaula scans, candidate pools) is mapped over the cluster too."""
+    its own independent work (Kaula scans, candidate pools) is mapped over the cluster too,
+    and with ``distribute_fits`` each fit's sums over arcs run on the cluster's workers (the
+    unit leaves its worker thread while it waits for them)."""
     experiment = get_experiment(experiment_name)
     cfg = experiment.config_type.from_dict(config)
     ctx = RunContext(
@@ -86,7 +89,15 @@ def run_unit(
         mapper=_cluster_map if nested else map,
     )
     start = time.perf_counter()
-    out = experiment.run(cfg, ctx)
+    if distribute_fits:
+        from dataclasses import replace
+
+        from dask.distributed import worker_client
+
+        with worker_client() as client:
+            out = experiment.run(cfg, replace(ctx, fit_client=client))
+    else:
+        out = experiment.run(cfg, ctx)
     result = {
         **out.result,
         "seed": int(seed),
@@ -163,9 +174,14 @@ def run_experiment(
     say: Callable[[str], None] | None = None,
     verbose: bool = True,
     max_memory: str | None = None,
+    distribute_fits: bool = False,
 ) -> tuple[dict, list[RunOutput]]:
     """Run ``repeat`` repetitions (seeds ``seed``, ``seed + 1``, ...) of ``experiment`` and,
-    with ``output``, write results.json, README.md and the figures there.
+    with ``output``, write results.json, README.md and the figures there. With
+    ``distribute_fits`` (needs ``workers`` or ``scheduler``) every fit of a repetition sends
+    its arcs to the cluster's workers, which compute its sums over arcs
+    (:class:`hamgrav.fit.distributed.DistributedArcProblem`): the path of a campaign too
+    large for one process.
 
     The repetitions that run at once are sized first (:func:`check_job_memory`) against
     ``max_memory`` (``8GiB``...; default: the memory available now).
@@ -182,6 +198,11 @@ def run_experiment(
         raise InputError(f"--repeat must be at least 1, got {repeat}")
     if workers and scheduler:
         raise InputError("give --workers or --scheduler, not both (a scheduler has its workers)")
+    if distribute_fits and not (workers or scheduler):
+        raise InputError(
+            "--distribute-fits sends each fit's arcs to a cluster's workers: give --workers N "
+            "or --scheduler ADDRESS too"
+        )
     check_job_memory(experiment, config, repeat, workers, scheduler, max_memory)
     say = say or _stderr_say("")
     seeds = [int(seed) + i for i in range(repeat)]
@@ -195,7 +216,7 @@ def run_experiment(
         f"scheduler {scheduler}"
         if scheduler
         else (f"LocalCluster of {workers} workers" if workers else "in-process")
-    )
+    ) + (", each fit's arcs on the workers" if distribute_fits else "")
     say(f"{experiment.name}: {repeat} repetition(s), seeds {seeds[0]}-{seeds[-1]}, {mode}")
     with dask_client(workers, scheduler) as client:
         from dask.distributed import as_completed
@@ -210,6 +231,7 @@ def run_experiment(
                 verbose,
                 f"[seed {s}] " if repeat > 1 else "",
                 bool(workers or scheduler) and repeat == 1,
+                distribute_fits,
                 pure=False,
             ): s
             for s in seeds

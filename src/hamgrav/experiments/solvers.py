@@ -98,7 +98,7 @@ class SolverExperiment(Experiment):
         ):
             out = {}
             for warm in (True, False):
-                est = row_estimator(settings, seed=seed, body=truth.body)
+                est = row_estimator(settings, seed=seed, body=truth.body, client=ctx.fit_client)
                 records = fit_continual(est, arcs, stage_arcs, warm_start=warm)
                 out["warm" if warm else "scratch"] = [
                     {**r.summary(), **errors_of(est.model_, r.result.params, truth, r12)}
