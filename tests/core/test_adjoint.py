@@ -8,6 +8,7 @@ import heyoka as hy
 import numpy as np
 import pytest
 
+from hamgrav.core import propagation
 from hamgrav.core.model import Model
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.propagation import adjoint_gradient
@@ -74,10 +75,10 @@ def test_sh_and_estimated_srp_gradient(small_arcs, synthetic_truth):
     assert np.all(grad[sh.n_params :] != 0)  # each trajectory's coefficient from its own arcs
 
 
-@pytest.mark.parametrize("keep", [[0, 19, 39], [0, 39]])
+@pytest.mark.parametrize("keep", [[0, 19, 39], [0, 39], [0]])
 def test_sparse_samples(small_arcs, network, keep):
     """Samples far apart: the quadrature between them spans long intervals (the costate
-    pass itself never stops at them)."""
+    pass itself never stops at them); one sample: no interval, a zero gradient."""
     model, theta = network
     sparse = replace(
         small_arcs,
@@ -123,7 +124,6 @@ class _NaNForArc:
 
 def test_an_arc_whose_costate_pass_fails_is_reported(small_arcs, network, monkeypatch):
     from hamgrav.core import model as model_module
-    from hamgrav.core import propagation
 
     model, theta = network
     rates = model_module.parameter_rate_function(model)
@@ -151,3 +151,39 @@ def test_stiff_parameters_are_reported(small_arcs, network):
 def test_unknown_method_refused(small_arcs, network):
     with pytest.raises(ValueError, match="gradient_method"):
         ArcProblem(network[0], small_arcs, gradient_method="reverse")
+
+
+def test_an_arcs_gradient_does_not_depend_on_the_other_arcs(small_arcs, network):
+    """Each arc's quadrature nodes are its own (a batch pads the shorter node lists with nodes
+    of weight 0): an arc sampled 14 s apart gives the same gradient alone and in one batch
+    with an arc sampled 266 s apart, which needs many more nodes."""
+    model, theta = network
+    dense = replace(
+        small_arcs,
+        times=small_arcs.times[:, :3],
+        states=small_arcs.states[:, :3],
+        true_states=small_arcs.true_states[:, :3],
+    )
+    keep = [0, 19, 38]
+    sparse = replace(
+        small_arcs,
+        times=small_arcs.times[:, keep],
+        states=small_arcs.states[:, keep],
+        true_states=small_arcs.true_states[:, keep],
+    )
+    a, b = dense.subset([2]), sparse.subset([5])
+    alone_a = _adjoint(model, a, theta, threads=1)
+    alone_b = _adjoint(model, b, theta, threads=1)
+    together = adjoint_gradient(
+        model,
+        np.concatenate([a.states[:, 0], b.states[:, 0]]),
+        np.concatenate([a.times, b.times]),
+        np.concatenate([a.states, b.states]),
+        np.repeat(theta[:, None], 2, axis=1),
+        n_shared=model.n_learn,
+        threads=1,
+    )
+    expected = alone_a.gradient + alone_b.gradient
+    assert np.abs(together.gradient - expected).max() <= 1e-13 * np.abs(expected).max()
+    nodes = [len(propagation._arc_nodes(x.times[0], x.states[0])[0]) for x in (a, b)]
+    assert nodes[1] > nodes[0]  # the sparse arc does need more nodes: the batch pads

@@ -242,9 +242,11 @@ def parameter_rate_function(model: Model):
     """Compiled (cached) rates of the adjoint's parameter accumulator, -(df/dp)^T lam, one per
     runtime parameter: a heyoka ``cfunc`` with inputs (x (6), lam (6)) and the runtime
     parameters as its ``pars``. The gradient of the cost is minus its integral over each arc
-    (quadrature at points of the backward pass's dense output)."""
+    (quadrature at nodes between samples, :func:`hamgrav.core.propagation.adjoint_gradient`)."""
 
     def build():
+        if model.n_system_params == 0:
+            raise ValueError("a model with no runtime parameters has no parameter gradient")
         sys = model.system()
         xs = [v for v, _ in sys]
         lam = list(hy.make_vars(*(f"adjoint_lam{i}" for i in range(6))))

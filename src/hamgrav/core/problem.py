@@ -255,8 +255,8 @@ class ArcProblem(LeastSquaresProblem):
         threads: worker threads (default: the number of CPUs).
         max_steps: Taylor steps allowed per batch of arcs before a trial is declared stiff.
         regulariser: optional :class:`Regulariser` added to the training objective.
-        gradient_method: how :meth:`gradient` (first-order solvers) gets A^T r: "adjoint", a
-            backward pass with no sensitivity per sample
+        gradient_method: how :meth:`gradient` (first-order solvers) gets A^T r: "adjoint", the
+            costate from the state transition matrix, no sensitivity to the parameters
             (:func:`hamgrav.core.propagation.adjoint_gradient`), or "forward", the
             sensitivities of :meth:`design` (both exact; they agree to about 1e-12).
     """

@@ -8,7 +8,8 @@ and the integrators come from the one compile cache of :mod:`hamgrav.core.model`
 - :func:`propagate_batch`: many trajectories, each from its own start time to its own time
   grid, in SIMD batches over threads, optionally with d state / d runtime-parameters.
 - :func:`adjoint_gradient`: the cost of many arcs and its gradient with respect to the
-  runtime parameters, by a backward (adjoint) pass: no sensitivity per sample.
+  runtime parameters, by the adjoint method (the costate from the state transition matrix,
+  the parameter rates by quadrature): no sensitivity to the parameters.
 - :func:`propagate_scalar`: one trajectory to a time grid (long truth propagations).
 - :func:`propagate_to_contact`: one trajectory until it crosses a closed surface.
 - :func:`state_transition`: d state(t_k) / d state(t_0) along trajectories (first-order
@@ -194,7 +195,7 @@ class AdjointGradient:
 
     Attributes:
         costs: (n,) each arc's cost 0.5 |W (y - x)|^2 (canonical, or dimensionless when
-            whitened); NaN for an arc that did not propagate.
+            whitened); NaN for an arc whose forward or costate pass failed.
         gradient: (n_system_params,) d (sum of the costs) / d runtime parameters, summed over
             the arcs that propagated (per-trajectory parameters: their sum too, see
             ``per_arc``).
@@ -226,30 +227,55 @@ ADJOINT_QUADRATURE_NODES = 3
 ADJOINT_QUADRATURE_PHASE = 0.02
 
 
-def _quadrature(times: np.ndarray, states: np.ndarray) -> tuple:
-    """Gauss-Legendre nodes for the integral of the parameter rates between samples: interval
-    k (between samples k and k + 1) is cut into as many equal pieces as its fastest arc needs
-    for each piece to span at most :data:`ADJOINT_QUADRATURE_PHASE` of the motion at the
-    arc's smallest radius (canonical rate max(1, r^-3/2): the spin's or the orbit's), with
-    :data:`ADJOINT_QUADRATURE_NODES` nodes in each piece. Every arc gets the same node layout
-    (the lanes of a SIMD batch share one grid shape).
+def _arc_nodes(times: np.ndarray, states: np.ndarray) -> tuple:
+    """Gauss-Legendre nodes of one arc (samples at ``times`` (m,), m >= 2) for the integral
+    of the parameter rates between samples: each interval is cut into as many equal pieces
+    as it needs for each to span at most :data:`ADJOINT_QUADRATURE_PHASE` of the motion at
+    the arc's smallest radius (canonical rate max(1, r^-3/2): the spin's or the orbit's),
+    with :data:`ADJOINT_QUADRATURE_NODES` nodes in each piece. An arc's nodes depend on that
+    arc alone.
 
-    Returns (node times (n, k), each node's interval (k,), each node's weight (n, k))."""
+    Returns (node times, each node's interval, each node's weight), in time order."""
     nodes, weights = np.polynomial.legendre.leggauss(ADJOINT_QUADRATURE_NODES)
-    radius = np.linalg.norm(states[..., :3], axis=-1)
-    smallest = np.min(np.where(np.isfinite(radius), radius, np.inf), axis=1)
-    rate = np.maximum(1.0, np.where(np.isfinite(smallest), smallest, 1.0) ** -1.5)
-    span = times[:, 1:] - times[:, :-1]  # (n, m - 1)
-    need = np.ceil(span * rate[:, None] / ADJOINT_QUADRATURE_PHASE)
-    pieces = np.maximum(need.max(axis=0, initial=1), 1).astype(int)
-    interval = np.repeat(np.arange(span.shape[1]), pieces * len(nodes))
-    # each node's place in its interval, in (0, 1): its piece, then the node in the piece
-    piece = np.concatenate([np.repeat(np.arange(k), len(nodes)) for k in pieces])
+    radius = np.linalg.norm(states[:, :3], axis=1)
+    smallest = np.min(radius) if np.all(np.isfinite(radius)) else 1.0
+    rate = max(1.0, smallest**-1.5)
+    span = times[1:] - times[:-1]
+    pieces = np.maximum(np.ceil(span * rate / ADJOINT_QUADRATURE_PHASE), 1).astype(int)
+    interval = np.repeat(np.arange(len(span)), pieces * len(nodes))
     per_piece = np.repeat(pieces, pieces * len(nodes))
+    # each node's place in its interval, in (0, 1): its piece, then the node in the piece
+    piece = np.arange(len(interval)) // len(nodes) - np.repeat(
+        np.cumsum(pieces) - pieces, pieces * len(nodes)
+    )
     place = (piece + 0.5 + 0.5 * np.tile(nodes, int(pieces.sum()))) / per_piece
-    node_times = times[:, interval] + span[:, interval] * place
-    node_weights = 0.5 * span[:, interval] * np.tile(weights, int(pieces.sum())) / per_piece
+    node_times = times[interval] + span[interval] * place
+    node_weights = 0.5 * span[interval] * np.tile(weights, int(pieces.sum())) / per_piece
     return node_times, interval, node_weights
+
+
+def _batch_grid(times: np.ndarray, arc_nodes: list) -> tuple:
+    """The grid of one SIMD batch (``times`` (w, m) of its lanes' arcs and their
+    :func:`_arc_nodes`): every lane's samples and nodes in time order, the lanes with fewer
+    nodes padded with nodes of weight 0 in their last interval, so that all lanes share one
+    grid length. Returns (grid (w, m + k), node times, intervals and weights (w, k), the
+    samples' and the nodes' places in the grid (w, m), (w, k))."""
+    w, m = times.shape
+    k = max(len(t) for t, _, _ in arc_nodes)
+    node_times, interval, weights = np.empty((w, k)), np.empty((w, k), int), np.zeros((w, k))
+    for lane, (t, iv, wt) in enumerate(arc_nodes):
+        n = len(t)
+        node_times[lane, :n], interval[lane, :n], weights[lane, :n] = t, iv, wt
+        if n < k:  # strictly between the last node and the last sample
+            fraction = np.arange(1, k - n + 1) / (k - n + 1)
+            node_times[lane, n:] = t[-1] + (times[lane, -1] - t[-1]) * fraction
+            interval[lane, n:] = m - 2
+    # sample j sorts just before interval j's nodes (stable: the nodes keep their order)
+    keys = np.concatenate([np.broadcast_to(np.arange(m) - 0.5, (w, m)), interval], axis=1)
+    order = np.argsort(keys, axis=1, kind="stable")
+    grid = np.take_along_axis(np.concatenate([times, node_times], axis=1), order, axis=1)
+    place = np.argsort(order, axis=1)
+    return grid, node_times, interval, weights, place[:, :m], place[:, m:]
 
 
 def adjoint_gradient(
@@ -309,12 +335,10 @@ def adjoint_gradient(
     lock = threading.Lock()
     rates = parameter_rate_function(model)
     n_rate_pars = rates.nparams  # a cfunc counts parameters up to the last one it uses
-    node_times, node_interval, node_weights = _quadrature(times, forward.states)
-    n_nodes = node_times.shape[1]
-    # each arc's grid: sample k, then the nodes between it and sample k + 1, ..., the last
-    order = np.argsort(np.concatenate([np.arange(n_m) - 0.5, node_interval + 0.0]), kind="stable")
-    grid = np.concatenate([times, node_times], axis=1)[:, order]
-    is_sample = order < n_m
+    arc_nodes = {}
+    if n_m > 1:
+        for i in np.flatnonzero(forward.ok):
+            arc_nodes[i] = _arc_nodes(times[i], forward.states[i])
 
     def gradient_of(ta, sel: np.ndarray):
         """(the lanes' gradients (n_par, len(sel)), which lanes ended well, whether the step
@@ -326,28 +350,35 @@ def adjoint_gradient(
         st[:6] = states0[pad].T
         st[6:] = np.eye(6).reshape(36, 1)
         ta.pars[:] = runtime_params[:, pad]
+        grid, node_times, interval, weights, at_sample, at_node = _batch_grid(
+            times[pad], [arc_nodes[i] for i in pad]
+        )
+        n_nodes = node_times.shape[1]
         limit = _StepLimit(max_steps)
-        out = ta.propagate_grid(np.ascontiguousarray(grid[pad].T), callback=limit)[-1]
+        out = ta.propagate_grid(np.ascontiguousarray(grid.T), callback=limit)[-1]
         if limit.exceeded or out.shape[0] != grid.shape[1]:
             return None, np.zeros(lanes, bool), limit.exceeded
-        out = out[..., :lanes]
-        x = out[:, :6].transpose(2, 0, 1)  # (lanes, grid, 6)
-        phi = out[:, 6:].reshape(-1, 6, 6, lanes).transpose(3, 0, 1, 2)  # (lanes, grid, 6, 6)
-        jumps = np.einsum("lkij,lki->lkj", phi[:, is_sample], kicks[sel])  # Phi_k^T dJ/dx_k
+        out = out[..., :lanes].transpose(2, 0, 1)  # (lanes, grid, 42)
+
+        def at(places):
+            return np.take_along_axis(out, places[:lanes, :, None], axis=1)
+
+        samples, at_nodes = at(at_sample), at(at_node)
+        phi_samples = samples[..., 6:].reshape(lanes, n_m, 6, 6)
+        phi_nodes = at_nodes[..., 6:].reshape(lanes, n_nodes, 6, 6)
+        jumps = np.einsum("lkij,lki->lkj", phi_samples, kicks[sel])  # Phi_k^T dJ/dx_k
         after = np.cumsum(jumps[:, ::-1], axis=1)[:, ::-1][:, 1:]  # sum over j > k
         # Phi is symplectic (Hamilton's equations in canonical (q, p)): Phi^-T = -J Phi J,
         # so lam = Phi^-T c is (-v_p, v_q) for v = Phi (c_p, -c_q), with no solve
-        c = after[:, node_interval]  # (lanes, nodes, 6)
-        v = np.einsum(
-            "lnij,lnj->lni", phi[:, ~is_sample], np.concatenate([c[..., 3:], -c[..., :3]], axis=-1)
-        )
+        c = np.take_along_axis(after, interval[:lanes, :, None], axis=1)  # (lanes, nodes, 6)
+        v = np.einsum("lnij,lnj->lni", phi_nodes, np.concatenate([c[..., 3:], -c[..., :3]], -1))
         lam = np.concatenate([-v[..., 3:], v[..., :3]], axis=-1)
-        points = np.concatenate([x[:, ~is_sample], lam], axis=-1).reshape(-1, 12).T
-        extra = {"time": node_times[sel].ravel()} if rates.is_time_dependent else {}
+        points = np.concatenate([at_nodes[..., :6], lam], axis=-1).reshape(-1, 12).T
+        extra = {"time": node_times[:lanes].ravel()} if rates.is_time_dependent else {}
         if n_rate_pars:
             extra["pars"] = np.repeat(runtime_params[:n_rate_pars, sel], n_nodes, axis=1)
         values = rates(np.ascontiguousarray(points), **extra)
-        gradient = -np.einsum("plj,lj->pl", values.reshape(-1, lanes, n_nodes), node_weights[sel])
+        gradient = -np.einsum("plj,lj->pl", values.reshape(-1, lanes, n_nodes), weights[:lanes])
         return (
             gradient,
             np.all(np.isfinite(gradient), axis=0) & np.all(np.isfinite(lam), axis=(1, 2)),

@@ -354,13 +354,17 @@ def _descent_record(descents: Arcs, truth: Truth) -> dict:
     }
 
 
-def _order_unit(unit, *, arcs, truth, settings, sizes, shells, seed, escape_factor) -> dict:
-    """One arrival order of the network (a work unit of plain data): ``unit`` is ("random",
-    stage groups of orbit indices) or ("d-optimal", None). Returns the orbits by stage, the
-    mean exterior error after each stage, the D-optimal choices and the wall time [s]."""
+def _order_unit(
+    unit, *, arcs, truth, settings, sizes, shells, seed, escape_factor, client=None
+) -> dict:
+    """One arrival order of the network (a work unit of plain data, but for ``client``, the
+    Dask client of a distributed fit when the units run in this process): ``unit`` is
+    ("random", stage groups of orbit indices) or ("d-optimal", None). Returns the orbits by
+    stage, the mean exterior error after each stage, the D-optimal choices and the wall time
+    [s]."""
     kind, groups = unit
     start = time.perf_counter()
-    est = row_estimator(settings, seed=seed, body=truth.body)
+    est = row_estimator(settings, seed=seed, body=truth.body, client=client)
     choices = None
     if kind == "random":
         run = ContinualFit(est, arcs)
@@ -611,6 +615,8 @@ class DeepExperiment(Experiment):
             shells=shells,
             seed=ctx.seed,
             escape_factor=tracking.escape_factor,
+            # units mapped over the cluster are its tasks already: their fits run there
+            client=ctx.fit_client if ctx.mapper is map else None,
         )
         done = []
         for unit in ctx.mapper(work, units):  # builtin map: one by one, as each finishes
