@@ -1,5 +1,5 @@
-"""The deep-region experiment's pieces: its default campaign, the stage orders, the
-D-optimal choice, the tracked descents."""
+"""The deep-region experiment's pieces: its default campaign, the stage orders, the tracked
+descents and their report (the D-optimal choice: tests/fit/test_d_optimal.py)."""
 
 import numpy as np
 import pytest
