@@ -185,5 +185,5 @@ def test_an_arcs_gradient_does_not_depend_on_the_other_arcs(small_arcs, network)
     )
     expected = alone_a.gradient + alone_b.gradient
     assert np.abs(together.gradient - expected).max() <= 1e-13 * np.abs(expected).max()
-    nodes = [len(propagation._arc_nodes(x.times[0], x.states[0])[0]) for x in (a, b)]
+    nodes = [len(propagation._arc_nodes(x.times, x.states)[0][0]) for x in (a, b)]
     assert nodes[1] > nodes[0]  # the sparse arc does need more nodes: the batch pads

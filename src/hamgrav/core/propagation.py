@@ -227,31 +227,39 @@ ADJOINT_QUADRATURE_NODES = 3
 ADJOINT_QUADRATURE_PHASE = 0.02
 
 
-def _arc_nodes(times: np.ndarray, states: np.ndarray) -> tuple:
-    """Gauss-Legendre nodes of one arc (samples at ``times`` (m,), m >= 2) for the integral
-    of the parameter rates between samples: each interval is cut into as many equal pieces
-    as it needs for each to span at most :data:`ADJOINT_QUADRATURE_PHASE` of the motion at
-    the arc's smallest radius (canonical rate max(1, r^-3/2): the spin's or the orbit's),
-    with :data:`ADJOINT_QUADRATURE_NODES` nodes in each piece. An arc's nodes depend on that
-    arc alone.
+def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
+    """Gauss-Legendre nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states``
+    (n, m, 6)) for the integral of the parameter rates between samples: each interval is cut
+    into as many equal pieces as it needs for each to span at most
+    :data:`ADJOINT_QUADRATURE_PHASE` of the motion at the arc's smallest radius (canonical
+    rate max(1, r^-3/2): the spin's or the orbit's), with :data:`ADJOINT_QUADRATURE_NODES`
+    nodes in each piece. An arc's nodes depend on that arc alone.
 
-    Returns (node times, each node's interval, each node's weight), in time order."""
+    Returns, per arc, (node times, each node's interval, each node's weight) in time order."""
     nodes, weights = np.polynomial.legendre.leggauss(ADJOINT_QUADRATURE_NODES)
-    radius = np.linalg.norm(states[:, :3], axis=1)
-    smallest = np.min(radius) if np.all(np.isfinite(radius)) else 1.0
-    rate = max(1.0, smallest**-1.5)
-    span = times[1:] - times[:-1]
-    pieces = np.maximum(np.ceil(span * rate / ADJOINT_QUADRATURE_PHASE), 1).astype(int)
-    interval = np.repeat(np.arange(len(span)), pieces * len(nodes))
-    per_piece = np.repeat(pieces, pieces * len(nodes))
-    # each node's place in its interval, in (0, 1): its piece, then the node in the piece
-    piece = np.arange(len(interval)) // len(nodes) - np.repeat(
-        np.cumsum(pieces) - pieces, pieces * len(nodes)
-    )
-    place = (piece + 0.5 + 0.5 * np.tile(nodes, int(pieces.sum()))) / per_piece
-    node_times = times[interval] + span[interval] * place
-    node_weights = 0.5 * span[interval] * np.tile(weights, int(pieces.sum())) / per_piece
-    return node_times, interval, node_weights
+    q = len(nodes)
+    radius = np.linalg.norm(states[..., :3], axis=-1)
+    smallest = np.where(np.isfinite(radius).all(axis=1), radius.min(axis=1), 1.0)
+    rate = np.maximum(1.0, smallest**-1.5)
+    span = times[:, 1:] - times[:, :-1]
+    pieces = np.maximum(np.ceil(span * rate[:, None] / ADJOINT_QUADRATURE_PHASE), 1).astype(int)
+    out: list = [None] * len(times)
+    # arcs cut alike (as a campaign's usually are) share one layout, computed once
+    layouts, which = np.unique(pieces, axis=0, return_inverse=True)
+    for k, layout in enumerate(layouts):
+        arcs = np.flatnonzero(which.ravel() == k)
+        interval = np.repeat(np.arange(len(layout)), layout * q)
+        per_piece = np.repeat(layout, layout * q)
+        # each node's place in its interval, in (0, 1): its piece, then the node in the piece
+        piece = np.arange(len(interval)) // q - np.repeat(np.cumsum(layout) - layout, layout * q)
+        place = (piece + 0.5 + 0.5 * np.tile(nodes, int(layout.sum()))) / per_piece
+        node_times = times[arcs][:, interval] + span[arcs][:, interval] * place
+        node_weights = (
+            0.5 * span[arcs][:, interval] * (np.tile(weights, int(layout.sum())) / per_piece)
+        )
+        for row, arc in enumerate(arcs):
+            out[arc] = (node_times[row], interval, node_weights[row])
+    return out
 
 
 def _batch_grid(times: np.ndarray, arc_nodes: list) -> tuple:
@@ -335,10 +343,11 @@ def adjoint_gradient(
     lock = threading.Lock()
     rates = parameter_rate_function(model)
     n_rate_pars = rates.nparams  # a cfunc counts parameters up to the last one it uses
-    arc_nodes = {}
-    if n_m > 1:
-        for i in np.flatnonzero(forward.ok):
-            arc_nodes[i] = _arc_nodes(times[i], forward.states[i])
+    arc_nodes: list = [None] * n
+    if n_m > 1 and forward.ok.any():
+        good = np.flatnonzero(forward.ok)
+        for i, nodes in zip(good, _arc_nodes(times[good], forward.states[good]), strict=True):
+            arc_nodes[i] = nodes
 
     def gradient_of(ta, sel: np.ndarray):
         """(the lanes' gradients (n_par, len(sel)), which lanes ended well, whether the step
@@ -361,6 +370,8 @@ def adjoint_gradient(
         out = out[..., :lanes].transpose(2, 0, 1)  # (lanes, grid, 42)
 
         def at(places):
+            if (places == places[0]).all():  # one layout for every lane: plain indexing
+                return out[:, places[0]]
             return np.take_along_axis(out, places[:lanes, :, None], axis=1)
 
         samples, at_nodes = at(at_sample), at(at_node)
@@ -377,7 +388,7 @@ def adjoint_gradient(
         extra = {"time": node_times[:lanes].ravel()} if rates.is_time_dependent else {}
         if n_rate_pars:
             extra["pars"] = np.repeat(runtime_params[:n_rate_pars, sel], n_nodes, axis=1)
-        values = rates(np.ascontiguousarray(points), **extra)
+        values = rates(np.ascontiguousarray(points), batch_parallel=False, **extra)
         gradient = -np.einsum("plj,lj->pl", values.reshape(-1, lanes, n_nodes), weights[:lanes])
         return (
             gradient,
