@@ -26,8 +26,7 @@ from .common import (
     CampaignConfig,
     cv_sh_option,
     cv_sh_row,
-    errors_of,
-    fit,
+    fit_rows,
     harmonic_option,
     lm_iterations_option,
     network_best,
@@ -123,8 +122,7 @@ class AnomaliesExperiment(Experiment):
             rows["shape+sh-cv"] = cv_sh_row(config.sh_degrees, prior="shape")
         rows["shape+network"] = best
         sets = sets_for(truth, config.shells_rb, (), ctx.seed)
-        fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
-        field_error = {n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()}
+        fits, field_error = fit_rows(rows, arcs, truth, ctx, sets)
         kaula = {
             n: e.fitted_.solver["kaula_alpha"]
             for n, e in fits.items()

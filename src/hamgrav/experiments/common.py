@@ -217,6 +217,17 @@ def fit(name: str, arcs: Arcs, truth: Truth, ctx: RunContext, **settings) -> Gra
     return estimator
 
 
+def fit_rows(
+    rows: dict[str, dict], arcs: Arcs, truth: Truth, ctx: RunContext, sets: dict, prefix: str = ""
+) -> tuple[dict[str, GravityEstimator], dict[str, dict[str, float]]]:
+    """The campaign's fits: every row (name -> estimator settings) fitted to ``arcs`` in
+    order (:func:`fit`; progress names it ``prefix`` + name), and each row's field errors on
+    the named evaluation ``sets`` (:func:`errors_of`). Returns (estimators, errors) by row."""
+    fits = {name: fit(f"{prefix}{name}", arcs, truth, ctx, **s) for name, s in rows.items()}
+    errors = {name: errors_of(e.model_, e.params_, truth, sets) for name, e in fits.items()}
+    return fits, errors
+
+
 def network_best(hidden, lm_iterations: int, *, harmonic: float, **overrides) -> dict:
     """The network-best estimator settings of an experiment row: ``hidden`` layers, each
     member's LM iteration cap, the harmonic penalty's weight (0: off) and other overrides."""

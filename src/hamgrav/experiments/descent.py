@@ -33,8 +33,7 @@ from .common import (
     campaign_artefacts,
     cv_sh_option,
     cv_sh_row,
-    errors_of,
-    fit,
+    fit_rows,
     harmonic_option,
     lm_iterations_option,
     network_best,
@@ -192,10 +191,8 @@ class DescentExperiment(Experiment):
             if config.cv_sh:
                 rows["shape+sh-cv"] = cv_sh_row(config.sh_degrees, prior="shape")
             rows["shape+network"] = {**best, "prior": "shape"}
-        fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
-
         sets = sets_for(truth, config.shells_rb, (config.altitude_m,), seed)
-        field_error = {n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()}
+        fits, field_error = fit_rows(rows, arcs, truth, ctx, sets)
 
         start = time.perf_counter()
         descents = DescentConfig(count=config.descents)

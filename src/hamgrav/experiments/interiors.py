@@ -22,8 +22,7 @@ from ..report.interiors import interiors_readme, residuals_figure
 from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
-    errors_of,
-    fit,
+    fit_rows,
     harmonic_option,
     lm_iterations_option,
     network_best,
@@ -104,12 +103,9 @@ class InteriorsExperiment(Experiment):
         for interior in config.truths:
             truth, arcs = simulate(replace(config, interior=interior), ctx)
             sets = sets_for(truth, config.shells_rb, (config.altitude_m,), ctx.seed)
-            errors, fitted = {}, {}
-            for name, settings in rows.items():
-                est = fit(f"{interior} {name}", arcs, truth, ctx, **settings)
-                errors[name] = errors_of(est.model_, est.params_, truth, sets)
-                fitted[name] = est.fitted_.solver
-                flat[f"{interior}/{name}"] = errors[name]
+            estimators, errors = fit_rows(rows, arcs, truth, ctx, sets, prefix=f"{interior} ")
+            fitted = {name: est.fitted_.solver for name, est in estimators.items()}
+            flat |= {f"{interior}/{name}": e for name, e in errors.items()}
             shells = [k for k in errors["shape"] if k.startswith("r")]
             truths[interior] = {
                 "missed_fraction": {k: errors["shape"][k] for k in shells},

@@ -24,7 +24,14 @@ from dataclasses import dataclass
 from ..fit.estimator import CV_HARMONIC_WEIGHTS, truth_shell_metric
 from ..report.selection import selection_readme
 from .base import Experiment, RunContext, RunOutput
-from .common import CampaignConfig, cv_sh_row, errors_of, fit, network_best, sets_for, simulate
+from .common import (
+    CampaignConfig,
+    cv_sh_row,
+    fit_rows,
+    network_best,
+    sets_for,
+    simulate,
+)
 from .config import option
 
 __all__ = ["SelectionConfig", "SelectionExperiment", "TRUTH_SHELL"]
@@ -90,8 +97,7 @@ class SelectionExperiment(Experiment):
             weights = tuple(sorted(config.harmonic_weights, reverse=True))
             rows["network-best-cv"] = {**best, "harmonic": weights, **folds}
             scan = {f"network-best-w{w:g}": {**best, "harmonic": w} for w in weights}
-        fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in {**rows, **scan}.items()}
-        field_error = {n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()}
+        fits, field_error = fit_rows({**rows, **scan}, arcs, truth, ctx, sets)
         chosen = {
             name: {s["name"]: s["chosen"] for s in est.fitted_.solver.get("selection", [])}
             for name, est in fits.items()

@@ -25,6 +25,7 @@ from .common import (
     CampaignConfig,
     errors_of,
     fit,
+    fit_rows,
     row_estimator,
     sets_for,
     simulate,
@@ -77,9 +78,8 @@ class SolverExperiment(Experiment):
                 "learning_rate": config.learning_rate,
             }
             rows[f"network-lm-{tag}"] = {**common, "solver": lm}
-        fits = {name: fit(name, arcs, truth, ctx, **s) for name, s in rows.items()}
+        fits, field_error = fit_rows(rows, arcs, truth, ctx, sets)
         summary = {name: est.fitted_.solver for name, est in fits.items()}
-        field_error = {n: errors_of(e.model_, e.params_, truth, sets) for n, e in fits.items()}
 
         per_stage = np.array_split(np.arange(config.orbits), config.stages)
         stage_arcs = [arcs.arcs_of(o) for o in per_stage]
