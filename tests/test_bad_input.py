@@ -605,3 +605,56 @@ def test_signal_between_fit_and_write_keeps_checkpoint(files, tmp_path, monkeypa
     result = runner.invoke(app, [*args, "-o", str(out), "--resume"])
     assert result.exit_code == 0, result.output
     assert out.exists() and not checkpoint_path_for(out).exists()
+
+
+def test_a_signal_a_library_turned_into_another_error_is_still_a_stop(files, tmp_path, monkeypatch):
+    """A Ctrl-C that arrives inside a library call which reports it as an error of its own
+    (numpy's structured-array comparison turns it into a TypeError) is the user's stop: the
+    checkpoint is kept and said so, not an internal error."""
+    import signal
+
+    from hamgrav import cli
+    from hamgrav.fit.fitted import FittedModel
+
+    arcs, _ = files
+    out = tmp_path / "lm.h5"
+    args = ["fit", str(arcs), "--model", "network", "--hidden", "4", "--solver", "lm"]
+
+    def interrupted_inside_a_library(self, *a, **k):
+        cli._signalled[:] = [signal.SIGINT]  # as the command's SIGINT handler records it
+        raise TypeError("Cannot compare structured arrays unless they have a common dtype")
+
+    monkeypatch.setattr(FittedModel, "with_arcs_file", interrupted_inside_a_library)
+    result = runner.invoke(app, [*args, "-o", str(out)])
+    assert result.exit_code == 130, result.output
+    assert "internal error" not in result.output
+    assert "the last checkpoint is kept" in result.output and "--resume" in result.output
+    assert checkpoint_path_for(out).exists() and not out.exists()
+
+
+def test_an_error_without_a_signal_is_still_a_bug(files, tmp_path, monkeypatch):
+    from hamgrav.fit.fitted import FittedModel
+
+    arcs, _ = files
+    args = ["fit", str(arcs), "--model", "network", "--hidden", "4", "--solver", "lm"]
+
+    def broken(self, *a, **k):
+        raise TypeError("a bug")
+
+    monkeypatch.setattr(FittedModel, "with_arcs_file", broken)
+    result = runner.invoke(app, [*args, "-o", str(tmp_path / "m.h5")])
+    assert result.exit_code == 70 and "internal error" in result.output, result.output
+
+
+def test_an_interruption_in_an_exceptions_chain_is_found():
+    from hamgrav.cli import Terminated, _as_interruption, _signalled
+
+    _signalled.clear()
+    try:
+        try:
+            raise Terminated
+        except KeyboardInterrupt as inner:
+            raise TypeError("reported by a library") from inner
+    except TypeError as exc:
+        assert isinstance(_as_interruption(exc), Terminated)
+    assert _as_interruption(ValueError("no signal")) is None

@@ -26,8 +26,34 @@ class Terminated(KeyboardInterrupt):
     signum = signal.SIGTERM
 
 
+#: The stop signal that arrived during the command, if any (see :func:`_as_interruption`).
+_signalled: list[int] = []
+
+
 def _raise_terminated(signum, frame):
+    _signalled[:] = [signum]
     raise Terminated
+
+
+def _raise_interrupted(signum, frame):
+    _signalled[:] = [signum]
+    raise KeyboardInterrupt
+
+
+def _as_interruption(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt or Terminated behind ``exc``: ``exc`` itself, one in its chain
+    of causes, or, when a stop signal arrived during the command, that signal's. A signal
+    can arrive inside a library call that turns the exception raised there into one of its
+    own (numpy's comparison of structured arrays reports any failure as a TypeError: one
+    of 50 kills of the kill test): it is still the user's interruption, not a bug."""
+    seen = exc
+    while seen is not None:
+        if isinstance(seen, KeyboardInterrupt):
+            return seen
+        seen = seen.__cause__ or seen.__context__
+    if _signalled:
+        return Terminated() if _signalled[0] == signal.SIGTERM else KeyboardInterrupt()
+    return None
 
 
 def _stopped(exc: BaseException) -> tuple[str, int]:
@@ -157,10 +183,14 @@ class _CommandSignals:
 
     def __enter__(self):
         self.previous = None
+        self.previous_int = None
         _swallowed.clear()
+        _signalled.clear()
         main = threading.current_thread() is threading.main_thread()
         if main and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
             self.previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        if main and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self.previous_int = signal.signal(signal.SIGINT, _raise_interrupted)
         previous = self.hook = sys.unraisablehook
 
         def keep_swallowed(unraisable):
@@ -176,6 +206,8 @@ class _CommandSignals:
         sys.unraisablehook = self.hook
         if self.previous is not None:
             signal.signal(signal.SIGTERM, self.previous)
+        if self.previous_int is not None:
+            signal.signal(signal.SIGINT, self.previous_int)
         return False
 
 
@@ -188,6 +220,19 @@ def _stop_if_signalled() -> None:
     :class:`_CommandSignals`)."""
     if _swallowed:
         raise _swallowed.pop()
+
+
+def _report_stop(exc: KeyboardInterrupt) -> None:
+    """Say in one line that the command was stopped, with nothing half-written, and exit with
+    128 + the signal."""
+    remove_partial_files()
+    how, status = _stopped(exc)
+    err.print(
+        f"{how}; no file is left half-written (hamgrav writes each file whole or not at all)",
+        highlight=False,
+        soft_wrap=True,
+    )
+    raise typer.Exit(code=status) from None
 
 
 def _command(typer_app: typer.Typer, *args, **kwargs):
@@ -206,15 +251,7 @@ def _command(typer_app: typer.Typer, *args, **kwargs):
                 except HamgravError as exc:
                     _fail(exc)
                 except KeyboardInterrupt as exc:
-                    remove_partial_files()
-                    how, status = _stopped(exc)
-                    err.print(
-                        f"{how}; no file is left half-written (hamgrav writes each file "
-                        "whole or not at all)",
-                        highlight=False,
-                        soft_wrap=True,
-                    )
-                    raise typer.Exit(code=status) from None
+                    _report_stop(exc)
                 except (
                     typer.Exit,
                     typer.Abort,
@@ -224,6 +261,9 @@ def _command(typer_app: typer.Typer, *args, **kwargs):
                 ):
                     raise
                 except Exception as exc:
+                    stop = _as_interruption(exc)
+                    if stop is not None:
+                        _report_stop(stop)
                     disk = disk_error(exc, getattr(exc, "filename", None) or "a file")
                     if disk is not None:  # a write outside hamgrav's own (a library's cache)
                         _fail(disk)
@@ -965,6 +1005,11 @@ def fit(
         run.write(arcs_file)
     except (KeyboardInterrupt, DiskError, DistributedError) as exc:
         _fit_stopped(exc, ckpt, output, written=_file_id(output) not in (None, before))
+    except Exception as exc:
+        stop = _as_interruption(exc)
+        if stop is None:
+            raise
+        _fit_stopped(stop, ckpt, output, written=_file_id(output) not in (None, before))
     _report_fit(estimator, output, settings["term"], strict)
 
 
