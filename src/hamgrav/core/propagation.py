@@ -215,7 +215,7 @@ class AdjointGradient:
 #: Tolerance of the costate pass (the state and its transition matrix, 42 variables, over
 #: each whole arc). The costs come from the forward pass at the fit's tolerance; only the
 #: gradient depends on this one: on the 112 Itokawa arcs it agrees with the forward
-#: sensitivities' to 4e-13 relative at 1e-8 (4e-10 at 1e-6, 2e-8 at 1e-4).
+#: sensitivities' to 2e-12 relative at 1e-8 (bench/gradient.py; 5e-10 at 1e-6).
 ADJOINT_TOLERANCE = 1e-8
 #: Gauss-Legendre nodes per piece of an interval between samples at which the parameter
 #: rates are integrated (exact for polynomials of degree 2 * nodes - 1): on the 112 Itokawa
@@ -223,7 +223,7 @@ ADJOINT_TOLERANCE = 1e-8
 #: tolerance's floor.
 ADJOINT_QUADRATURE_NODES = 3
 #: Longest piece of an interval between samples, in radians of the fastest motion along the
-#: arc (see :func:`_quadrature`); the quadrature's error falls as its sixth power.
+#: arc (see :func:`_arc_nodes`); the quadrature's error falls as its sixth power.
 ADJOINT_QUADRATURE_PHASE = 0.02
 
 
@@ -313,7 +313,7 @@ def adjoint_gradient(
     :data:`ADJOINT_TOLERANCE`) over each whole arc gives them at every sample and at the
     quadrature's nodes between samples (dense output: the steps are not cut at the samples).
     The gradient is the integral of (df/dp)^T lam, by Gauss-Legendre quadrature
-    (:func:`_quadrature`) of :func:`hamgrav.core.model.parameter_rate_function` (one reverse
+    (:func:`_arc_nodes`) of :func:`hamgrav.core.model.parameter_rate_function` (one reverse
     sweep of lam . f per node).
     Memory: the states, and per thread one SIMD batch's 42 variables at the samples and
     nodes and their rates (n_system_params per node); never a sensitivity per sample. The

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .tables import format_range
+from .tables import format_range, range_row
 
 __all__ = ["data_coverage", "descent_readme"]
 
@@ -90,9 +90,7 @@ def descent_readme(report: dict, paper: dict) -> list[str]:
         "|---|" + "---|" * len(sets),
     ]
     for name, errs in agg["field_error"].items():
-        lines.append(
-            f"| {name} | " + " | ".join(format_range(errs[k], "{:.3f}") for k in sets) + " |"
-        )
+        lines.append(range_row([name], errs, sets))
     coverage = data_coverage(first, cfg["altitude_m"])
     if coverage:
         lines += ["", coverage]

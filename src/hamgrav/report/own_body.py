@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .tables import format_range
+from .tables import range_row
 
 __all__ = ["own_body_readme"]
 
@@ -29,11 +29,8 @@ def own_body_readme(report: dict) -> list[str]:
     ]
     for row, errors in field.items():
         worst = max(errors[s]["max"] for s in sets)
-        lines.append(
-            f"| {row} | "
-            + " | ".join(format_range(errors[s], "{:.3f}") for s in sets)
-            + f" | {'yes' if worst < 1 else 'no'} (worst {worst:.3f}) |"
-        )
+        verdict = f"{'yes' if worst < 1 else 'no'} (worst {worst:.3f})"
+        lines.append(range_row([row], errors, sets, after=[verdict]))
     lines += [
         "",
         "## The exported ICGEM coefficients, evaluated on their own (shells outside R_B)",
@@ -42,9 +39,7 @@ def own_body_readme(report: dict) -> list[str]:
         "|---|" + "---|" * len(shells),
     ]
     for row, errors in export.items():
-        lines.append(
-            f"| {row} | " + " | ".join(format_range(errors[s], "{:.3f}") for s in shells) + " |"
-        )
+        lines.append(range_row([row], errors, shells))
     lines += ["", "## What each fit chose (first draw)", ""]
     for row, f in first["fits"].items():
         chosen = ", ".join(f"{k} {v}" for k, v in f["chosen"].items())

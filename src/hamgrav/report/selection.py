@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .tables import format_range
+from .tables import range_row
 
 __all__ = ["selection_readme"]
 
@@ -26,11 +26,7 @@ def selection_readme(report: dict, truth_shell: float, within: float) -> list[st
     ]
     for row, errors in agg.items():
         worst = max(errors[s]["max"] for s in shells)
-        lines.append(
-            f"| {row} | "
-            + " | ".join(format_range(errors[s], "{:.3f}") for s in sets)
-            + f" | {worst:.3f} |"
-        )
+        lines.append(range_row([row], errors, sets, after=[f"{worst:.3f}"]))
     cv_rows = [r for r in agg if r.startswith("sh") and (r.endswith("-cv") or r == "sh-auto")]
     worst_cv = {r: max(agg[r][s]["max"] for s in shells) for r in cv_rows}
     lines += [

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .tables import format_range
+from .tables import range_row
 
 __all__ = ["solvers_readme"]
 
@@ -25,12 +25,9 @@ def solvers_readme(report: dict) -> list[str]:
     ]
     for key, f in first["fits"].items():
         n_params = f.get("n_params", "")
-        lines.append(
-            f"| {key} | {f['solver']} | {'weighted' if f['weighted'] else 'unweighted'} | "
-            f"{n_params} | {f['outcome']} | {f['iterations']} | {f['wall_s']:.1f} | "
-            + " | ".join(format_range(agg[key][s], "{:.3f}") for s in sets)
-            + " |"
-        )
+        weighting = "weighted" if f["weighted"] else "unweighted"
+        cells = [key, f["solver"], weighting, n_params, f["outcome"], f["iterations"]]
+        lines.append(range_row([*cells, f"{f['wall_s']:.1f}"], agg[key], sets))
     lines += [
         "",
         "## Continual learning: warm start vs scratch (first repetition)",

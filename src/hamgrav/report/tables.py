@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-__all__ = ["aggregate", "summarise", "format_range"]
+__all__ = ["aggregate", "summarise", "format_range", "range_row"]
 
 
 def aggregate(repetitions: list[dict], keys: tuple[str, ...]) -> dict:
@@ -41,6 +41,13 @@ def summarise(values: list) -> dict:
         "max": float(np.max(present)),
         "n": len(present),
     }
+
+
+def range_row(cells: list, stats: dict, keys, fmt: str = "{:.3f}", after: list = ()) -> str:
+    """A README table row: the ``cells`` first, then ``format_range(stats[k], fmt)`` for each
+    of ``keys``, then the ``after`` cells."""
+    ranges = [format_range(stats[k], fmt) for k in keys]
+    return "| " + " | ".join(str(c) for c in [*cells, *ranges, *after]) + " |"
 
 
 def format_range(summary: dict | None, fmt: str = "{:.1f}") -> str:

@@ -8,7 +8,7 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
 from ..bodies.evaluation import set_label
-from .tables import format_range
+from .tables import format_range, range_row
 
 __all__ = ["uncertainty_readme", "maps_figure", "calibration_figure", "verdict"]
 
@@ -195,9 +195,7 @@ def uncertainty_readme(report: dict) -> list[str]:
         "|---|" + "---|" * len(sets),
     ]
     for name, errs in agg["field_error"].items():
-        lines.append(
-            f"| {name} | " + " | ".join(format_range(errs[k], "{:.3f}") for k in sets) + " |"
-        )
+        lines.append(range_row([name], errs, sets))
     lines += ["", "Fit outcomes (first repetition):", ""]
     for name, f in first["fits"].items():
         lines.append(
