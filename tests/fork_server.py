@@ -4,9 +4,11 @@
 Each child is a fork of this process, which has imported the command line once and run
 nothing else (no threads to inherit), so a run costs the command's work, not Python's and the
 libraries' start (a second and a half each, which 100 runs cannot afford). Requests are JSON
-lines on stdin: ``{"args": [...], "log": path, "kill_after": seconds or null, "signal": n}``;
-the answer to each is a JSON line ``{"status": exit status, or -signal when the signal ended
-the child, "seconds": how long it ran}``.
+lines on stdin: ``{"args": [...], "log": path, "kill_after": seconds or null, "signal": n,
+"after_file": path or null}`` (with ``after_file``, the ``kill_after`` seconds count from the
+moment that file appears, not from the start); the answer to each is a JSON line
+``{"status": exit status, or -signal when the signal ended the child, "seconds": how long it
+ran}``.
 """
 
 import json
@@ -61,6 +63,16 @@ def _wait(pid: int, timeout: float | None) -> int | None:
     return None
 
 
+def _wait_for_file(pid: int, path: str) -> int | None:
+    """None once ``path`` exists, polled every millisecond; the child's wait status if it
+    ends first."""
+    while not os.path.exists(path):
+        status = _wait(pid, 0.001)
+        if status is not None:
+            return status
+    return None
+
+
 def main() -> None:
     # as in a command started from a terminal, whatever the test runner was started as (a
     # shell's background job ignores SIGINT, and its children inherit that)
@@ -72,7 +84,11 @@ def main() -> None:
         pid = os.fork()
         if pid == 0:
             _child(request["args"], request["log"])
-        status = _wait(pid, request.get("kill_after"))
+        status = None
+        if request.get("after_file"):
+            status = _wait_for_file(pid, request["after_file"])
+        if status is None:
+            status = _wait(pid, request.get("kill_after"))
         if status is None:
             os.kill(pid, request["signal"])
             status = _wait(pid, None)
