@@ -33,6 +33,7 @@ BEFORE_THE_OPTION = {
     "oracle_balance": False,
     "adam_rungs": [],
     "adam_steps": 1500,
+    "cv_group": "arc",
 }
 
 

@@ -88,6 +88,25 @@ def test_folds_by_trajectory_never_split_a_trajectory():
         fold_assignment(trajectory, np.arange(3), 5, "trajectory")
 
 
+def test_folds_by_altitude_are_contiguous_bands_lowest_first():
+    radius = np.array([1.9, 1.2, 1.5, 1.3, 1.8, 1.2, 1.7, 1.4, 1.6])
+    trajectory = np.zeros(9, dtype=int)  # one trajectory: altitude folds ignore it
+    arcs = np.setdiff1d(np.arange(9), [7])  # 1.4 is a validation arc, not folded
+    folds = fold_assignment(trajectory, arcs, 3, "altitude", seed=5, radius=radius)
+    assert [f.tolist() for f in folds] == [[1, 3, 5], [2, 6, 8], [0, 4]]
+    assert [sorted(radius[f].tolist()) for f in folds] == [
+        [1.2, 1.2, 1.3],
+        [1.5, 1.6, 1.7],
+        [1.8, 1.9],
+    ]
+    assert all(np.array_equal(f, np.sort(f)) for f in folds)
+    # the seed does not move a band
+    other = fold_assignment(trajectory, arcs, 3, "altitude", seed=6, radius=radius)
+    assert all(np.array_equal(a, b) for a, b in zip(folds, other, strict=True))
+    with pytest.raises(InputError, match="two folds or more"):
+        fold_assignment(trajectory, arcs[:1], 3, "altitude", radius=radius)
+
+
 def test_cross_validate_scores_every_candidate_on_the_same_held_out_arcs():
     trajectory = np.arange(10)
     calls = []
@@ -167,6 +186,19 @@ def test_folds_by_trajectory_in_the_estimator(structured_arcs, synthetic_truth):
     assert table.unit_costs.shape[1] == len(set(trajectory[est.train_]))  # units: orbits
 
 
+def test_folds_by_altitude_in_the_estimator(structured_arcs, synthetic_truth):
+    est = GravityEstimator(
+        "sh", degree=(2, 3), cv_group="altitude", folds=3, body=synthetic_truth.body
+    )
+    est.fit(structured_arcs)
+    (table,) = est.selection_
+    lowest = np.linalg.norm(structured_arcs.states[..., :3], axis=-1).min(axis=1)
+    bands = [lowest[held] for held in table.folds]
+    assert all(a.max() <= b.min() for a, b in zip(bands, bands[1:]))  # lowest band first
+    assert table.unit_costs.shape[1] == len(est.train_)  # units: arcs
+    assert "bands of altitude" in table.lines()[0]
+
+
 def test_kaula_cv_needs_no_truth(small_arcs, synthetic_truth):
     imported = replace(
         small_arcs, truth=MasconSet(np.zeros((0, 3)), np.zeros(0)), interior=NO_TRUTH
@@ -232,6 +264,10 @@ def test_choices_are_checked(small_arcs, synthetic_truth):
     with pytest.raises(InputError, match="per-trajectory"):
         GravityEstimator(
             "sh", degree="auto", cv_group="trajectory", estimate_trajectory_params=True, body=body
+        ).choices()
+    with pytest.raises(InputError, match="'altitude' holds out whole trajectories"):
+        GravityEstimator(
+            "sh", degree="auto", cv_group="altitude", estimate_trajectory_params=True, body=body
         ).choices()
     with pytest.raises(InputError, match="one integer degree"):
         GravityEstimator("sh", degree="auto", body=body).build_model(small_arcs)

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..errors import InputError
 from ..fit.estimator import CV_HARMONIC_WEIGHTS, truth_shell_metric
+from ..fit.selection import GROUPS
 from ..report.selection import selection_readme
 from .base import Experiment, RunContext, RunOutput
 from .common import (
@@ -32,7 +34,7 @@ from .common import (
     sets_for,
     simulate,
 )
-from .config import option
+from .config import label, option
 
 __all__ = ["SelectionConfig", "SelectionExperiment", "TRUTH_SHELL"]
 
@@ -61,12 +63,24 @@ class SelectionConfig(CampaignConfig):
         nonempty=True,
     )
     folds: int = option(5, "Cross-validation folds.", at_least=2, at_most=20)
+    cv_group: str = option(
+        "arc",
+        "What a fold holds out whole: arc, trajectory, or altitude (bands of the arcs' "
+        "lowest radius, each predicted from the others).",
+    )
     sh: bool = option(True, "Fit the SH rows.")
     network: bool = option(True, "Fit the network rows (the costly part).")
     shells_rb: tuple[float, ...] = option(
         (1.05, 1.1, 1.2, 1.5), "Evaluation shells [R_B].", at_least=1.0, nonempty=True
     )
     altitude_m: float = option(30.0, "Surface-following evaluation altitude [m].", above=0)
+
+    def check(self) -> None:
+        super().check()
+        if self.cv_group not in GROUPS:
+            raise InputError(
+                f"{label('cv_group')} must be one of {', '.join(GROUPS)}, got {self.cv_group!r}"
+            )
 
 
 class SelectionExperiment(Experiment):
@@ -82,7 +96,7 @@ class SelectionExperiment(Experiment):
         truth, arcs = simulate(config, ctx)
         sets = sets_for(truth, config.shells_rb, (config.altitude_m,), ctx.seed)
         metric = truth_shell_metric(arcs, truth.body, TRUTH_SHELL)
-        folds = {"folds": config.folds}
+        folds = {"folds": config.folds, "cv_group": config.cv_group}
         rows: dict[str, dict] = {}
         for d in config.sh_degrees if config.sh else ():
             sh = {"term": "sh", "degree": d, "validation_fraction": 0.0}

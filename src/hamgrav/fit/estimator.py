@@ -408,9 +408,11 @@ class GravityEstimator:
         mapper: map function for independent work (Kaula scan, cross-validation fits);
             builtin ``map`` by default.
         folds: folds k of the cross-validation of a hyperparameter chosen by "cv".
-        cv_group: what a fold holds out whole: "arc" or "trajectory" (every arc of an
-            orbit, descent or particle together; not with ``estimate_trajectory_params``,
-            whose held-out trajectories would have no estimated parameters).
+        cv_group: what a fold holds out whole: "arc", "trajectory" (every arc of an
+            orbit, descent or particle together) or "altitude" (bands of the arcs' lowest
+            radius, lowest first: the lowest is predicted from the arcs above it); the last
+            two not with ``estimate_trajectory_params``, whose held-out trajectories would
+            have no estimated parameters.
         cv_rule: "one-standard-error" (the simplest candidate within one standard error of
             the lowest held-out cost) or "lowest" (see :mod:`hamgrav.fit.selection`).
         client: a ``dask.distributed`` Client: the fit's sums over arcs (costs, gradient,
@@ -717,9 +719,9 @@ class GravityEstimator:
             raise InputError(f"cv_rule must be one of {', '.join(RULES)}, got {self.cv_rule!r}")
         if out and self.cv_group not in GROUPS:
             raise InputError(f"cv_group must be one of {', '.join(GROUPS)}, got {self.cv_group!r}")
-        if out and self.cv_group == "trajectory" and self.estimate_trajectory_params:
+        if out and self.cv_group in ("trajectory", "altitude") and self.estimate_trajectory_params:
             raise InputError(
-                "cv_group 'trajectory' holds out whole trajectories, whose estimated "
+                f"cv_group {self.cv_group!r} holds out whole trajectories, whose estimated "
                 "per-trajectory parameters the other folds cannot fit: use cv_group 'arc'"
             )
         return out
@@ -997,6 +999,7 @@ class GravityEstimator:
                 seed=self.seed,
                 reference=partial(_no_correction_costs, first, arcs),
                 mapper=self.mapper,
+                radius=np.linalg.norm(arcs.states[..., :3], axis=-1).min(axis=1),
             )
             settings[name] = selection.chosen
             selections.append(selection)

@@ -6,7 +6,11 @@ network's harmonic-penalty weight) from the arcs alone:
 - :func:`fold_assignment`: the seeded split of a set of arcs into ``k`` folds of whole arcs
   (``group="arc"``) or of whole trajectories (``group="trajectory"``: every arc of an orbit,
   descent or particle in the same fold, so that neighbouring arcs of one trajectory, whose
-  errors are correlated, never sit on both sides of a split).
+  errors are correlated, never sit on both sides of a split), or in bands of altitude
+  (``group="altitude"``: the arcs sorted by their lowest radius and dealt into ``k``
+  contiguous bands, so that the lowest band is predicted from the arcs above it: a check of
+  the downward continuation, which random folds of arcs that all fly at the same altitudes do
+  not make).
 - :func:`cross_validate`: every candidate fitted on k - 1 folds and scored by its per-arc cost
   on the held-out fold. Every arc is held out exactly once, so every candidate is scored on
   the same arcs and the candidates' paired differences give the standard error.
@@ -18,7 +22,7 @@ largest Kaula alpha, the lowest degree, the largest harmonic weight) to the most
 
 The rule, on the costs c[j, u] of candidate j on held-out unit u (a unit is an arc, or with
 ``group="trajectory"`` the sum over a trajectory's arcs: the units are independent) for
-n units:
+n units (with ``group="altitude"`` the units are arcs):
 
 - ``lowest``: the candidate of lowest total (equivalently mean) cost over the units.
 - ``one-standard-error``: with b the lowest, d[j, u] = c[j, u] - c[b, u] and
@@ -48,8 +52,8 @@ __all__ = ["GROUPS", "RULES", "Selection", "choose", "cross_validate", "fold_ass
 #: Selection rules (see the module docstring); the first is the default.
 RULES = ("one-standard-error", "lowest")
 #: What a fold holds out whole.
-GROUPS = ("arc", "trajectory")
-_PLURAL = {"arc": "arcs", "trajectory": "trajectories"}
+GROUPS = ("arc", "trajectory", "altitude")
+_PLURAL = {"arc": "arcs", "trajectory": "trajectories", "altitude": "arcs"}
 
 
 def choose(costs, rule: str = "one-standard-error") -> int:
@@ -89,18 +93,35 @@ def paired_excess(costs: np.ndarray, best: int) -> tuple[np.ndarray, np.ndarray]
 
 
 def fold_assignment(
-    trajectory: np.ndarray, arcs: Sequence[int], folds: int, group: str = "arc", seed: int = 0
+    trajectory: np.ndarray,
+    arcs: Sequence[int],
+    folds: int,
+    group: str = "arc",
+    seed: int = 0,
+    radius: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """The held-out arc indices of each fold: ``arcs`` (indices into ``trajectory``, the
     trajectory index of every arc) shuffled by ``seed`` in whole ``group``s (arcs, or whole
     trajectories) and dealt into ``folds`` folds of as equal size in groups as possible
-    (each sorted). Fewer groups than ``folds``: one fold per group. Raises
+    (each sorted). Fewer groups than ``folds``: one fold per group. With ``group``
+    "altitude", the arcs sorted by ``radius`` (every arc's lowest radius, any unit; ties by
+    index) and split into ``folds`` contiguous bands, lowest first (no shuffle). Raises
     :class:`InputError` with fewer than two groups to fold."""
     if group not in GROUPS:
         raise InputError(
             f"the cross-validation group must be one of {', '.join(GROUPS)}, got {group!r}"
         )
     arcs = np.asarray(arcs, dtype=int)
+    if group == "altitude":
+        if radius is None:
+            raise ValueError("altitude folds need every arc's radius")  # a caller's bug
+        if len(arcs) < 2 or int(folds) < 2:
+            raise InputError(
+                f"cross-validation needs two folds or more of arcs; the training arcs hold "
+                f"{len(arcs)} for {folds} fold(s): use more arcs, or give the value"
+            )
+        by_height = arcs[np.lexsort((arcs, np.asarray(radius, dtype=float)[arcs]))]
+        return [np.sort(b) for b in np.array_split(by_height, min(int(folds), len(arcs)))]
     keys = arcs if group == "arc" else np.asarray(trajectory)[arcs]
     groups = np.unique(keys)
     if len(groups) < 2 or int(folds) < 2:
@@ -183,9 +204,14 @@ class Selection:
         """A few printable lines: candidate, mean held-out cost, standard error, chosen."""
         mean, se = self.summary()
         what = "relative to no correction" if self.reference is not None else "per unit"
+        over = (
+            "bands of altitude (lowest first)"
+            if self.group == "altitude"
+            else f"whole {_PLURAL[self.group]}"
+        )
         out = [
-            f"{label or self.name} by {len(self.folds)}-fold cross-validation over whole "
-            f"{_PLURAL[self.group]} ({self.rule} rule; held-out cost {what} +- standard error):"
+            f"{label or self.name} by {len(self.folds)}-fold cross-validation over {over} "
+            f"({self.rule} rule; held-out cost {what} +- standard error):"
         ]
         for k, c in enumerate(self.candidates):
             mark = " <- kept" if k == self.index else (" (lowest)" if k == self.lowest else "")
@@ -227,6 +253,7 @@ def cross_validate(
     seed: int = 0,
     reference: Callable | None = None,
     mapper: Callable = map,
+    radius: np.ndarray | None = None,
 ) -> Selection:
     """Choose among ``candidates`` (simplest first) by k-fold cross-validation on ``arcs``.
 
@@ -237,14 +264,15 @@ def cross_validate(
     run by ``mapper`` (builtin ``map`` or a Dask client's). ``trajectory``: the trajectory
     index of every arc (:attr:`hamgrav.core.arcs.Arcs.trajectory`), for ``group``
     "trajectory" and the units of the standard error. ``reference(held)``: the no-correction
-    costs of those arcs, for the relative costs reported (optional). Fold assignment
-    (:func:`fold_assignment`) is seeded by ``seed``; the rule is :func:`choose`."""
+    costs of those arcs, for the relative costs reported (optional). ``radius``: every arc's
+    lowest radius, for ``group`` "altitude". Fold assignment (:func:`fold_assignment`) is
+    seeded by ``seed``; the rule is :func:`choose`."""
     if rule not in RULES:
         raise InputError(f"the selection rule must be one of {', '.join(RULES)}, got {rule!r}")
     candidates = tuple(candidates)
     if not candidates:
         raise InputError(f"no {name} candidates to choose from")
-    parts = fold_assignment(trajectory, arcs, folds, group, seed)
+    parts = fold_assignment(trajectory, arcs, folds, group, seed, radius)
     everything = np.sort(np.concatenate(parts))
     jobs = [(c, np.setdiff1d(everything, held), held) for c in candidates for held in parts]
     results = list(mapper(partial(_run, score), jobs))
@@ -253,7 +281,7 @@ def cross_validate(
     arc_costs = np.stack([np.concatenate(results[j : j + k]) for j in range(0, len(jobs), k)])
     ref_arcs = None if reference is None else np.asarray(reference(held_all), dtype=float)
     # the units of the standard error: arcs, or whole trajectories (their arcs' sum)
-    keys = held_all if group == "arc" else np.asarray(trajectory)[held_all]
+    keys = np.asarray(trajectory)[held_all] if group == "trajectory" else held_all
     units, inverse = np.unique(keys, return_inverse=True)
     unit_costs = np.zeros((len(candidates), len(units)))
     np.add.at(unit_costs, (slice(None), inverse), arc_costs)
