@@ -10,6 +10,8 @@ from typer.testing import CliRunner
 from hamgrav.cli import app
 from hamgrav.fit.continual import fit_continual
 
+from .snapshot import check_snapshot
+
 runner = CliRunner()
 
 TINY_CAMPAIGN = [
@@ -32,6 +34,7 @@ def test_descent_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("descent", out / "results.json")
     data = json.loads((out / "results.json").read_text())
     assert data["command"].startswith("hamgrav experiment descent")
     assert data["seeds"] == [0, 1] and len(data["repetitions"]) == 2
@@ -83,6 +86,7 @@ def test_solvers_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("solvers", out / "results.json")
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
     assert set(rep["fits"]) == {
@@ -133,6 +137,7 @@ def test_continual_tiny(tmp_path, monkeypatch):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("continual", out / "results.json")
     # the network's warm stages run the warm solver without its gate (on by default; SH
     # has no warm solver), and the reproducing command says so
     gates = [s.validation_gate for s in warm_solvers if s is not None]
@@ -243,6 +248,7 @@ def test_interiors_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("interiors", out / "results.json")
     rep = json.loads((out / "results.json").read_text())["repetitions"][0]
     assert set(rep["truths"]) == {"head-tail", "void"}
     for truth in rep["truths"].values():
@@ -268,6 +274,7 @@ def test_anomalies_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("anomalies", out / "results.json")
     rep = json.loads((out / "results.json").read_text())["repetitions"][0]
     names = {"shape", "shape+sh2", "shape+sh3", "shape+sh3-kaula", "shape+sh3-kaula-holdout"}
     assert set(rep["field_error"]) == names | {"shape+network"}
@@ -318,6 +325,7 @@ def test_deep_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("deep", out / "results.json")
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
     # network-best's warm stages gate their steps on validation by default
@@ -465,6 +473,7 @@ def test_swarm_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("swarm", out / "results.json")
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
     assert rep["n_arcs"] == 5 and rep["n_particles"] == 3
@@ -644,6 +653,7 @@ def test_uncertainty_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("uncertainty", out / "results.json")
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
     assert set(rep["covariance"]) == {"sh2", "network-best", "network-best+penalty"}

@@ -11,6 +11,8 @@ from hamgrav.experiments.ladder import RUNGS, DeepLadderConfig, oracle_fit
 from hamgrav.experiments.runner import run_experiment
 from hamgrav.fit.estimator import GravityEstimator
 
+from .snapshot import check_snapshot
+
 
 @pytest.mark.parametrize("prior", [None, "shape"])
 def test_oracle_fit_carries_the_field_beside_the_known_part(prior, synthetic_truth, small_arcs):
@@ -72,6 +74,7 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
         adam_steps=3,
     )
     report, _ = run_experiment("deep-ladder", config, seed=2, output=tmp_path, verbose=False)
+    check_snapshot("deep-ladder", tmp_path / "results.json")
     ladder = report["repetitions"][0]["ladder"]
     expected = {f"network/{r}" for r in RUNGS if r != "oracle-arcs"} | {
         "network/oracle-arcs:0",

@@ -7,6 +7,8 @@ from typer.testing import CliRunner
 
 from hamgrav.cli import app
 
+from .snapshot import check_snapshot
+
 runner = CliRunner()
 
 
@@ -21,6 +23,7 @@ def test_own_body_tiny(tmp_path, monkeypatch):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("own_body", out / "results.json")
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
     assert rep["body"]["mesh_vertices"] == 6 * 8**2 + 2  # the ICQ grid, edges merged
@@ -46,6 +49,7 @@ def test_selection_tiny(tmp_path):
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
+    check_snapshot("selection", out / "results.json")
     rep = json.loads((out / "results.json").read_text())["repetitions"][0]
     errors = rep["field_error"]
     assert {"sh3", "sh3-kaula-truth", "sh3-kaula-cv", "sh-auto", "network-best-cv"} <= set(errors)
