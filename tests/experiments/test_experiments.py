@@ -8,7 +8,6 @@ import pytest
 from typer.testing import CliRunner
 
 from hamgrav.cli import app
-from hamgrav.fit.continual import fit_continual
 
 from .snapshot import check_snapshot
 
@@ -125,11 +124,14 @@ def test_continual_tiny(tmp_path, monkeypatch):
 
     warm_solvers = []
 
-    def spy(estimator, *args, **kwargs):
-        warm_solvers.append(estimator.warm_solver)
-        return fit_continual(estimator, *args, **kwargs)
+    fit_staged = continual.fit_staged
 
-    monkeypatch.setattr(continual, "fit_continual", spy)
+    def spy(*args, **kwargs):
+        estimator, run = fit_staged(*args, **kwargs)
+        warm_solvers.append(estimator.warm_solver)
+        return estimator, run
+
+    monkeypatch.setattr(continual, "fit_staged", spy)
     out = tmp_path / "continual"
     args = [
         "experiment", "continual", *TINY_CAMPAIGN, "--orbits", "4", "--hidden", "4",

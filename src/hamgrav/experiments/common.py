@@ -13,6 +13,7 @@ from ..bodies.interiors import INTERIORS, TRUTH_FRAMES, Truth
 from ..core.arcs import Arcs
 from ..core.fields import field_errors
 from ..errors import InputError
+from ..fit.continual import ContinualFit
 from ..fit.estimator import (
     NETWORK_BEST_HARMONIC,
     NETWORK_BEST_SOLVER,
@@ -226,6 +227,23 @@ def fit_rows(
     fits = {name: fit(f"{prefix}{name}", arcs, truth, ctx, **s) for name, s in rows.items()}
     errors = {name: errors_of(e.model_, e.params_, truth, sets) for name, e in fits.items()}
     return fits, errors
+
+
+def fit_staged(
+    settings: dict, arcs: Arcs, arriving, truth: Truth, ctx: RunContext, *, warm_start=True
+) -> tuple[GravityEstimator, ContinualFit]:
+    """One row of a campaign whose arcs arrive in stages: the estimator of ``settings`` fitted
+    stage by stage (``arriving``: the arc indices of ``arcs`` that arrive at each stage),
+    warm-started from the previous stage's fit unless ``warm_start`` is false. Returns the
+    estimator and its :class:`~hamgrav.fit.continual.ContinualFit` (its ``records``, one per
+    stage; more stages can be added to it)."""
+    estimator = row_estimator(
+        settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper, client=ctx.fit_client
+    )
+    run = ContinualFit(estimator, arcs, warm_start=warm_start)
+    for new in arriving:
+        run.add(new)
+    return estimator, run
 
 
 def network_best(hidden, lm_iterations: int, *, harmonic: float, **overrides) -> dict:

@@ -16,13 +16,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..fit.continual import fit_continual
 from ..fit.estimator import NETWORK_WARM_SOLVER
 from ..report.continual import continual_figure, continual_readme
 from .base import Experiment, RunContext, RunOutput
 from .common import (
     CampaignConfig,
     errors_of,
+    fit_staged,
     harmonic_option,
     lm_iterations_option,
     network_best,
@@ -106,8 +106,9 @@ class ContinualExperiment(Experiment):
             for k in range(len(groups)):
                 stages[k][mode] = {}
             for name, settings in models.items():
-                est = row_estimator(settings, seed=ctx.seed, body=truth.body, client=ctx.fit_client)
-                records = fit_continual(est, arcs, arriving, warm_start=mode == "warm")
+                warm = mode == "warm"
+                est, run = fit_staged(settings, arcs, arriving, truth, ctx, warm_start=warm)
+                records = run.records
                 for k, r in enumerate(records):
                     stages[k][mode][name] = {
                         **errors_of(est.model_, r.result.params, truth, sets),

@@ -78,6 +78,7 @@ from .common import (
     CampaignConfig,
     campaign_artefacts,
     errors_of,
+    fit_staged,
     harmonic_option,
     lm_iterations_option,
     min_radius_rb_option,
@@ -482,12 +483,7 @@ class DeepExperiment(Experiment):
         ]
         finals, after, descent_fits, fits = {}, {}, {}, {}
         for name, settings in rows.items():
-            est = row_estimator(
-                settings, seed=ctx.seed, body=truth.body, mapper=ctx.mapper, client=ctx.fit_client
-            )
-            run = ContinualFit(est, all_arcs)
-            for new in arriving:
-                run.add(new)
+            est, run = fit_staged(settings, all_arcs, arriving, truth, ctx)
             records = list(run.records)
             errors = _stage_errors(est.model_, records, truth, shells)
             for stage, record, err in zip(stages, records, errors, strict=True):
