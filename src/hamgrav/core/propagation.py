@@ -214,13 +214,15 @@ class AdjointGradient:
 
 #: Tolerance of the costate pass (the state and its transition matrix, 42 variables, over
 #: each whole arc). The costs come from the forward pass at the fit's tolerance; only the
-#: gradient depends on this one: on the 112 Itokawa arcs it agrees with the forward
-#: sensitivities' to 2e-12 relative at 1e-8 (bench/gradient.py; 5e-10 at 1e-6).
-ADJOINT_TOLERANCE = 1e-8
+#: gradient depends on this one: on the 112 Itokawa arcs (bench/gradient.py) it agrees with
+#: the forward sensitivities' to 5e-12 relative at 1e-7 (2e-12 at 1e-8, 5e-10 at 1e-6), and
+#: 1e-7 takes 0.8-0.9 of 1e-8's time.
+ADJOINT_TOLERANCE = 1e-7
 #: Gauss-Legendre nodes per piece of an interval between samples at which the parameter
 #: rates are integrated (exact for polynomials of degree 2 * nodes - 1): on the 112 Itokawa
-#: arcs (14 s apart, one piece each) one node leaves 6e-7 relative, two 2e-12, three the
-#: tolerance's floor.
+#: arcs (14 s apart, one piece each) one node leaves 6e-7 relative, two 4e-13, three the
+#: tolerance's floor. Two would save 0.3 of the time, but on arcs sampled far apart (the
+#: tests' 266 s) they leave 7e-7 at the phase below and 4e-9 at a quarter of it.
 ADJOINT_QUADRATURE_NODES = 3
 #: Longest piece of an interval between samples, in radians of the fastest motion along the
 #: arc (see :func:`_arc_nodes`); the quadrature's error falls as its sixth power.
