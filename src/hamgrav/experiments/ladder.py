@@ -48,13 +48,20 @@ from ..core.fields import central_potential, perturbing_potential
 from ..core.mascons import mascon_acceleration
 from ..core.model import evaluate_field
 from ..errors import InputError
-from ..fit.continual import ContinualFit
 from ..fit.estimator import GravityEstimator, preset
 from ..fit.harmonic import HarmonicPenalty
 from ..fit.lm import LevenbergMarquardt
 from ..report.ladder import ladder_figure, ladder_readme
 from .base import Experiment, RunContext, RunOutput
-from .common import committed_holdout, errors_of, network_best, row_estimator, sets_for, simulate
+from .common import (
+    committed_holdout,
+    errors_of,
+    fit_staged,
+    network_best,
+    row_estimator,
+    sets_for,
+    simulate,
+)
 from .config import label, option
 from .deep import (
     SAMPLE_FLOOR_RB,
@@ -168,9 +175,7 @@ def oracle_fit(
     member = model.member()
     penalty = None
     if harmonic:
-        with_penalty = GravityEstimator(**{**estimator.get_params(), "harmonic": harmonic})
-        collocation = with_penalty.harmonic_penalty(member, arcs)
-        penalty = HarmonicPenalty(member, collocation.points, harmonic)
+        penalty = HarmonicPenalty(member, estimator.collocation_points(arcs), harmonic)
     problem = FieldProblem(member, points, target, target_acc, groups=groups, regulariser=penalty)
     solver = replace(solver, max_iter=ORACLE_ITERATIONS, patience=None)
     blocks = model.learnable.split_members(estimator.initial_params(model, arcs))
@@ -295,9 +300,8 @@ class DeepLadderExperiment(Experiment):
                 est = estimator().fit(clean)
                 score(row, "noise-free", est.model_, est.params_, est.result_.summary())
             if wanted & {"tracking", "descents-warm"}:
-                est = estimator()
-                run = ContinualFit(est, all_arcs)
-                record = run.add(orbital)
+                est, run = fit_staged(settings, all_arcs, [orbital], truth, ctx)
+                record = run.records[-1]
                 score(row, "tracking", est.model_, record.result.params, record.result.summary())
                 if "descents-warm" in wanted:
                     record = run.add(np.arange(arcs.n_arcs, all_arcs.n_arcs))

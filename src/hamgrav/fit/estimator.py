@@ -1100,10 +1100,15 @@ class GravityEstimator:
             return None
         if self.solver_name == "adam":
             raise InputError("harmonic (the Laplacian penalty) needs the LM solver, not Adam")
+        return HarmonicPenalty(model, self.collocation_points(arcs), float(self.harmonic))
+
+    def collocation_points(self, arcs: Arcs) -> np.ndarray:
+        """The harmonic penalty's collocation points for a fit to ``arcs`` (n, 3), canonical
+        units, body-fixed: outside the body out to the farthest tracked sample, seeded by the
+        estimator's seed."""
         body = self.body_of(arcs)
         reach = float(np.max(np.linalg.norm(arcs.states[..., :3], axis=-1)))
-        points = exterior_points(body, reach, DEFAULT_COLLOCATION_POINTS, seed=self.seed)
-        return HarmonicPenalty(model, points, float(self.harmonic))
+        return exterior_points(body, reach, DEFAULT_COLLOCATION_POINTS, seed=self.seed)
 
     def _fit_members(
         self, problem, init, solver, train, validation, callback, checkpoint, resume, reuse, warm
