@@ -346,6 +346,23 @@ def test_fit_harmonic_cv(arcs_file, tmp_path):
     )
     bad = runner.invoke(app, [*args, "--model", "sh:auto:1"])
     assert bad.exit_code == 2 and "'sh:auto' / 'sh:auto:L'" in bad.output
+    group = runner.invoke(app, [*args, "--harmonic", "cv", "--cv-group", "height"])
+    assert group.exit_code == 2 and "--cv-group must be one of arc, trajectory, altitude" in (
+        " ".join(group.output.split())
+    )
+
+
+def test_fit_harmonic_cv_in_bands_of_altitude(arcs_file, tmp_path):
+    from hamgrav.io.models import load_model
+
+    out = tmp_path / "n.h5"
+    args = ["fit", str(arcs_file), "--hidden", "4", "--solver", "lm", "-o", str(out)]
+    result = runner.invoke(
+        app, [*args, "--harmonic", "cv", "--folds", "2", "--cv-group", "altitude"]
+    )
+    assert result.exit_code == 0, result.output
+    (table,) = load_model(out).solver["selection"]
+    assert table["group"] == "altitude" and table["folds"] == 2
 
 
 def test_fit_strict_follows_the_diagnostics_not_the_outcome(point_mass_arcs, tmp_path, monkeypatch):

@@ -909,6 +909,15 @@ FoldsOption = Annotated[
         "of the lowest held-out cost).",
     ),
 ]
+CvGroupOption = Annotated[
+    str,
+    typer.Option(
+        help="What a fold of the cross-validation holds out whole: 'arc', 'trajectory' (every "
+        "arc of one trajectory), or 'altitude' (the arcs sorted by their lowest radius into "
+        "bands, lowest first: the lowest band predicted from the arcs above it, a check of "
+        "the field below the tracking).",
+    ),
+]
 InitOption = Annotated[
     Path | None,
     typer.Option(
@@ -959,6 +968,7 @@ def fit(
     kaula: KaulaOption = None,
     harmonic: HarmonicOption = None,
     folds: FoldsOption = 5,
+    cv_group: CvGroupOption = "arc",
     init: InitOption = None,
     steps: StepsOption = 1500,
     learning_rate: LearningRateOption = 1e-2,
@@ -975,6 +985,7 @@ def fit(
     The model file is written in every case, with the fit's outcome and diagnostics. An
     interrupted fit keeps a checkpoint beside it (OUTPUT.checkpoint.npz): --resume continues
     it, and a fresh fit refuses to start over it."""
+    from .fit.selection import GROUPS as CV_GROUPS
     from .io.arcs import load_arcs
     from .io.fit_run import checkpoint_for_fit, prepare_fit
     from .sizing import memory_limit
@@ -983,6 +994,8 @@ def fit(
     settings, kaula_value, hidden_sizes = _fit_options(
         model, hidden, prior, solver, kaula, harmonic, folds, workers, scheduler, steps
     )
+    if cv_group not in CV_GROUPS:
+        raise InputError(f"--cv-group must be one of {', '.join(CV_GROUPS)}, got {cv_group!r}")
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)
     limit = memory_limit(max_memory)
@@ -993,6 +1006,7 @@ def fit(
     body_obj = _body_for(body, arcs=arcs)
     settings |= {"adam_steps": steps, "learning_rate": learning_rate}
     settings |= {"prior": prior, "kaula": kaula_value, "seed": seed, "folds": folds}
+    settings["cv_group"] = cv_group
     estimator = _fit_estimator(settings, arcs, arcs_file, weighted, body_obj)
     run = prepare_fit(
         estimator, arcs, output, init=init, resume=resume, checkpoint=ckpt, init_name="--init"
