@@ -1,6 +1,7 @@
 """The estimator: the one fit path (noise weighting, shape prior, Kaula scan, known part)."""
 
 import math
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -598,3 +599,23 @@ def test_a_term_object_is_checked(small_arcs):
         GravityEstimator("network", kaula="cv").choices()
     with pytest.raises(InputError, match="term must be one of network, sh, none or a GravityTerm"):
         GravityEstimator("mascons").fit(small_arcs)
+
+
+def test_arcs_inside_the_series_sphere_are_flagged(small_arcs, synthetic_truth):
+    """SH need not converge inside its reference sphere: a fit whose arcs dip inside it
+    says how many and how deep; one whose arcs stay outside says nothing."""
+    body = synthetic_truth.body
+    lowest = np.linalg.norm(small_arcs.states[..., :3], axis=-1).min(axis=1)
+    assert lowest.min() > body.brillouin_radius  # this campaign flies outside
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", HamgravWarning)
+        outside = GravityEstimator("sh", degree=2, body=body).fit(small_arcs)
+    assert "inside_expansion" not in outside.diagnostics_
+    # the same arcs against a series about a sphere through the middle of the campaign
+    radius = float(np.median(lowest))
+    with pytest.warns(HamgravWarning, match=r"arcs fly inside the SH series' reference sphere"):
+        inside = GravityEstimator(SphericalHarmonics(2, radius), body=body).fit(small_arcs)
+    flagged = inside.diagnostics_["inside_expansion"]
+    assert flagged["of"] == small_arcs.n_arcs
+    assert flagged["arcs"] == np.count_nonzero(lowest < radius)
+    assert flagged["lowest"] == pytest.approx(lowest.min() / radius)

@@ -8,6 +8,8 @@
   the fitted cost per training arc; ``overfit``: it exceeds ``OVERFIT_FACTOR``.
 - ``arc_costs``: the per-arc costs behind ``relative_cost`` (:class:`ArcCosts`); the estimator
   keeps them as ``checked_arc_costs_``, out of its reported diagnostics.
+- ``inside_expansion`` (SH fits): the arcs that dip inside the series' reference sphere
+  (:func:`inside_expansion`), where the field the fit learns need not converge.
 - ``constrained_parameters``: the numerical rank of A^T A on the training arcs at the fitted
   parameters (eigenvalues above 1e-12 of the largest, i.e. singular values of A above 1e-6 of
   the largest): how many parameter directions the arcs determine.
@@ -28,6 +30,7 @@ __all__ = [
     "ArcCosts",
     "constrained_parameters",
     "diagnose",
+    "inside_expansion",
 ]
 
 #: A fit "clearly improves" over no correction when its held-out cost is below this fraction
@@ -103,6 +106,19 @@ def diagnose(
     if rank:
         out["constrained_parameters"] = constrained_parameters(problem, params, train, normal)
     return out
+
+
+def inside_expansion(radii: np.ndarray, reference_radius: float) -> dict | None:
+    """The arcs that fly inside the reference sphere of a series expansion (SH about the
+    Brillouin sphere), where the series need not converge: ``radii`` (n_arcs, m) of the
+    fitted arcs' samples and the sphere's radius, in one unit. Returns None when every
+    sample is outside, else {"arcs": how many dip inside, "of": n_arcs, "lowest": the lowest
+    sample's radius over the reference radius}."""
+    lowest = np.min(radii, axis=1) / float(reference_radius)
+    inside = int(np.count_nonzero(lowest < 1.0))
+    if not inside:
+        return None
+    return {"arcs": inside, "of": int(len(lowest)), "lowest": float(lowest.min())}
 
 
 def constrained_parameters(

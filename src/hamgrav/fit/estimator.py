@@ -43,7 +43,7 @@ from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
 from .base import Outcome, Solver, SolveResult
-from .diagnostics import OVERFIT_FACTOR, constrained_parameters, diagnose
+from .diagnostics import OVERFIT_FACTOR, constrained_parameters, diagnose, inside_expansion
 from .fitted import FittedModel
 from .harmonic import DEFAULT_COLLOCATION_POINTS, HarmonicPenalty
 from .kaula import KAULA_ALPHAS, KaulaPrior, scan_kaula
@@ -881,6 +881,25 @@ class GravityEstimator:
                     HamgravWarning,
                     stacklevel=2,
                 )
+            expansion = None if model.learnable is None else model.learnable.expansion()
+            if expansion is not None:
+                used = np.arange(arcs.n_arcs)
+                if train is not None:
+                    used = np.union1d(train, [] if validation is None else validation)
+                used = used.astype(int)
+                radii = np.linalg.norm(arcs.states[used, :, :3], axis=-1)
+                inside = inside_expansion(radii, expansion[1])
+                if inside is not None:
+                    self.diagnostics_["inside_expansion"] = inside
+                    warnings.warn(
+                        f"{inside['arcs']} of {inside['of']} arcs fly inside the SH series' "
+                        f"reference sphere (the Brillouin sphere; down to "
+                        f"{inside['lowest']:.2f} of its radius), where the series need not "
+                        "converge: its fit and its held-out costs there do not tell how it "
+                        "does outside; a network (network-best) has no such sphere",
+                        HamgravWarning,
+                        stacklevel=2,
+                    )
             self.checked_arc_costs_ = self.diagnostics_.pop("arc_costs")
             if ensemble:
                 ranks = [m.pop("constrained_parameters") for m in members]
