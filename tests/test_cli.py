@@ -338,6 +338,8 @@ def test_fit_harmonic_cv(arcs_file, tmp_path):
     assert result.exit_code == 0, result.output
     (table,) = load_model(out).solver["selection"]
     assert table["name"] == "harmonic" and table["candidates"] == [1e-3, 1e-4, 1e-5, 1e-6]
+    # the harmonic weight's own cross-validation: bands of altitude, the lowest held-out cost
+    assert table["group"] == "altitude" and table["rule"] == "lowest"
     assert load_model(out).solver["harmonic"]["weight"] == table["chosen"]
     assert "harmonic by 2-fold cross-validation" in result.output
     refused = runner.invoke(app, [*args, "--harmonic", "cv", "--solver", "adam"])
@@ -352,17 +354,15 @@ def test_fit_harmonic_cv(arcs_file, tmp_path):
     )
 
 
-def test_fit_harmonic_cv_in_bands_of_altitude(arcs_file, tmp_path):
+def test_fit_harmonic_cv_in_folds_of_arcs(arcs_file, tmp_path):
     from hamgrav.io.models import load_model
 
     out = tmp_path / "n.h5"
     args = ["fit", str(arcs_file), "--hidden", "4", "--solver", "lm", "-o", str(out)]
-    result = runner.invoke(
-        app, [*args, "--harmonic", "cv", "--folds", "2", "--cv-group", "altitude"]
-    )
+    result = runner.invoke(app, [*args, "--harmonic", "cv", "--folds", "2", "--cv-group", "arc"])
     assert result.exit_code == 0, result.output
     (table,) = load_model(out).solver["selection"]
-    assert table["group"] == "altitude" and table["folds"] == 2
+    assert table["group"] == "arc" and table["folds"] == 2
 
 
 def test_fit_strict_follows_the_diagnostics_not_the_outcome(point_mass_arcs, tmp_path, monkeypatch):

@@ -910,12 +910,13 @@ FoldsOption = Annotated[
     ),
 ]
 CvGroupOption = Annotated[
-    str,
+    str | None,
     typer.Option(
         help="What a fold of the cross-validation holds out whole: 'arc', 'trajectory' (every "
         "arc of one trajectory), or 'altitude' (the arcs sorted by their lowest radius into "
         "bands, lowest first: the lowest band predicted from the arcs above it, a check of "
-        "the field below the tracking).",
+        "the field below the tracking). Default: altitude for --harmonic cv (with the "
+        "lowest held-out cost), arc for --kaula cv and sh:auto (one standard error).",
     ),
 ]
 InitOption = Annotated[
@@ -968,7 +969,7 @@ def fit(
     kaula: KaulaOption = None,
     harmonic: HarmonicOption = None,
     folds: FoldsOption = 5,
-    cv_group: CvGroupOption = "arc",
+    cv_group: CvGroupOption = None,
     init: InitOption = None,
     steps: StepsOption = 1500,
     learning_rate: LearningRateOption = 1e-2,
@@ -994,7 +995,7 @@ def fit(
     settings, kaula_value, hidden_sizes = _fit_options(
         model, hidden, prior, solver, kaula, harmonic, folds, workers, scheduler, steps
     )
-    if cv_group not in CV_GROUPS:
+    if cv_group is not None and cv_group not in CV_GROUPS:
         raise InputError(f"--cv-group must be one of {', '.join(CV_GROUPS)}, got {cv_group!r}")
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)

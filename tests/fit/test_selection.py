@@ -292,3 +292,15 @@ def test_cross_validation_on_a_dask_client_equals_builtin_map(point_mass_arcs, s
         mapped = GravityEstimator(**settings, mapper=mapper).fit(point_mass_arcs)
     np.testing.assert_array_equal(mapped.selection_[0].unit_costs, serial.selection_[0].unit_costs)
     np.testing.assert_array_equal(mapped.params_, serial.params_)
+
+
+def test_each_choice_has_its_own_cross_validation_unless_told(synthetic_truth):
+    body = synthetic_truth.body
+    est = GravityEstimator("network", harmonic="cv", body=body)
+    assert est.cv_setting("harmonic") == ("altitude", "lowest")
+    assert est.cv_setting("degree") == est.cv_setting("kaula") == ("arc", "one-standard-error")
+    told = GravityEstimator("network", harmonic="cv", cv_group="trajectory", cv_rule="lowest")
+    assert told.cv_setting("harmonic") == told.cv_setting("degree") == ("trajectory", "lowest")
+    # bands could hold a trajectory's arcs out whole, leaving its parameters unfitted
+    srp = GravityEstimator("network", harmonic="cv", estimate_trajectory_params=True)
+    assert srp.cv_setting("harmonic") == ("arc", "lowest")
