@@ -904,9 +904,10 @@ HarmonicOption = Annotated[
 FoldsOption = Annotated[
     int,
     typer.Option(
-        help="Folds of the cross-validation of 'cv' / 'sh:auto' (whole arcs; the "
-        "one-standard-error rule keeps the simplest candidate within one standard error "
-        "of the lowest held-out cost).",
+        help="Folds of the cross-validation of 'cv' / 'sh:auto': for --kaula cv and sh:auto "
+        "whole arcs, the simplest candidate within one standard error of the lowest held-out "
+        "cost kept; for --harmonic cv bands of altitude, the lowest held-out cost kept (see "
+        "--cv-group).",
     ),
 ]
 CvGroupOption = Annotated[
@@ -915,8 +916,9 @@ CvGroupOption = Annotated[
         help="What a fold of the cross-validation holds out whole: 'arc', 'trajectory' (every "
         "arc of one trajectory), or 'altitude' (the arcs sorted by their lowest radius into "
         "bands, lowest first: the lowest band predicted from the arcs above it, a check of "
-        "the field below the tracking). Default: altitude for --harmonic cv (with the "
-        "lowest held-out cost), arc for --kaula cv and sh:auto (one standard error).",
+        "the field below the tracking). Default: altitude for --harmonic cv, arc for --kaula "
+        "cv and sh:auto. Each keeps its rule: the lowest held-out cost for --harmonic cv, "
+        "one standard error otherwise.",
     ),
 ]
 InitOption = Annotated[

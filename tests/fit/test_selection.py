@@ -266,7 +266,7 @@ def test_choices_are_checked(small_arcs, synthetic_truth):
         GravityEstimator(
             "sh", degree="auto", cv_group="trajectory", estimate_trajectory_params=True, body=body
         ).choices()
-    with pytest.raises(InputError, match="'altitude' holds out whole trajectories"):
+    with pytest.raises(InputError, match="'altitude' can hold a trajectory's arcs out whole"):
         GravityEstimator(
             "sh", degree="auto", cv_group="altitude", estimate_trajectory_params=True, body=body
         ).choices()
@@ -304,3 +304,24 @@ def test_each_choice_has_its_own_cross_validation_unless_told(synthetic_truth):
     # bands could hold a trajectory's arcs out whole, leaving its parameters unfitted
     srp = GravityEstimator("network", harmonic="cv", estimate_trajectory_params=True)
     assert srp.cv_setting("harmonic") == ("arc", "lowest")
+
+
+def test_a_checkpoint_records_each_choices_cross_validation_as_resolved(
+    small_arcs, synthetic_truth
+):
+    """A checkpoint resumes only under the same cross-validation: the resolved group and rule
+    of each choice (not None, whose meaning CV_DEFAULTS fixes), and none without a choice."""
+    body = synthetic_truth.body
+    cv = GravityEstimator("network", harmonic="cv", solver="lm", body=body)
+    settings = cv.checkpoint_identity(small_arcs, cv.make_solver())["settings"]
+    assert settings["cross_validation"] == {"harmonic": ["altitude", "lowest"]}
+    assert "cv_group" not in settings and "cv_rule" not in settings
+    told = GravityEstimator("network", harmonic="cv", solver="lm", cv_rule="one-standard-error")
+    told.body = body
+    other = told.checkpoint_identity(small_arcs, told.make_solver())["settings"]
+    assert other["cross_validation"] == {"harmonic": ["altitude", "one-standard-error"]}
+    plain = GravityEstimator("sh", degree=3, body=body)
+    assert (
+        "cross_validation"
+        not in plain.checkpoint_identity(small_arcs, plain.make_solver())["settings"]
+    )

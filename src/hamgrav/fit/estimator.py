@@ -668,7 +668,10 @@ class GravityEstimator:
         their descriptions; mappers, clients and metrics left out: they do not change the
         numbers), the ``solver`` that runs and the parameters a continued fit starts from. A
         checkpoint written under another identity is not resumed."""
+        # the cross-validation as each choice resolves it (cv_group / cv_rule None mean
+        # CV_DEFAULTS, which a later version may change); nothing when nothing is chosen
         skip = {"body", "mapper", "client", "kaula_metric", "trajectory_values"}
+        skip |= {"cv_group", "cv_rule"}
         settings = {}
         for name, value in self.get_params().items():
             if name in skip:
@@ -680,6 +683,9 @@ class GravityEstimator:
             elif isinstance(value, tuple | list):
                 value = [v.describe() if isinstance(v, GravityTerm) else v for v in value]
             settings[name] = value
+        choices = self.choices()
+        if choices:
+            settings["cross_validation"] = {n: list(self.cv_setting(n)) for n in choices}
         if self.trajectory_values is not None:
             values = np.ascontiguousarray(self.trajectory_values, np.float64)
             settings["trajectory_values_sha256"] = hashlib.sha256(values.tobytes()).hexdigest()
@@ -740,8 +746,8 @@ class GravityEstimator:
             raise InputError(f"cv_group must be one of {', '.join(GROUPS)}, got {self.cv_group!r}")
         if out and self.cv_group in ("trajectory", "altitude") and self.estimate_trajectory_params:
             raise InputError(
-                f"cv_group {self.cv_group!r} holds out whole trajectories, whose estimated "
-                "per-trajectory parameters the other folds cannot fit: use cv_group 'arc'"
+                f"cv_group {self.cv_group!r} can hold a trajectory's arcs out whole, leaving "
+                "its estimated per-trajectory parameters unfitted: use cv_group 'arc'"
             )
         return out
 
@@ -912,8 +918,8 @@ class GravityEstimator:
                     self.diagnostics_["inside_expansion"] = inside
                     warnings.warn(
                         f"{inside['arcs']} of {inside['of']} arcs fly inside the SH series' "
-                        f"reference sphere (the Brillouin sphere; down to "
-                        f"{inside['lowest']:.2f} of its radius), where the series need not "
+                        f"reference sphere (radius {expansion[1]:.4g} synchronous radii; "
+                        f"down to {inside['lowest']:.2f} of it), where the series need not "
                         "converge: its fit and its held-out costs there do not tell how it "
                         "does outside; a network (network-best) has no such sphere",
                         HamgravWarning,
@@ -1019,7 +1025,8 @@ class GravityEstimator:
         the ``train`` arcs (default all; never the validation arcs of the fit): each candidate
         is fitted on the other folds by this estimator's own procedure (its solver; the
         network holds out its own validation arcs of them to select its iterate on, SH fits
-        use them all) and scored by its cost on the held-out fold, and ``cv_rule`` keeps one
+        use them all) and scored by its cost on the held-out fold, and the choice's rule
+        (:meth:`cv_setting`, its folds too) keeps one
         (:func:`hamgrav.fit.selection.cross_validate`). The SH degree is chosen first, then
         the Kaula weight at the chosen degree. Returns (the chosen settings, the selections)."""
         choices = self.choices()
