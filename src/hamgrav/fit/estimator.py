@@ -908,11 +908,8 @@ class GravityEstimator:
                 )
             expansion = None if model.learnable is None else model.learnable.expansion()
             if expansion is not None:
-                used = np.arange(arcs.n_arcs)
-                if train is not None:
-                    used = np.union1d(train, [] if validation is None else validation)
-                used = used.astype(int)
-                radii = np.linalg.norm(arcs.states[used, :, :3], axis=-1)
+                # every arc of the fit: trained on or held out, the two split them all
+                radii = np.linalg.norm(arcs.states[..., :3], axis=-1)
                 inside = inside_expansion(radii, expansion[1])
                 if inside is not None:
                     self.diagnostics_["inside_expansion"] = inside
@@ -1042,6 +1039,7 @@ class GravityEstimator:
             if name not in choices:
                 continue
             first = {**settings, name: choices[name][0]}
+            group, rule = self.cv_setting(name)
             selection = cross_validate(
                 partial(_cv_score, settings, arcs, name),
                 choices[name],
@@ -1049,8 +1047,8 @@ class GravityEstimator:
                 train,
                 name="kaula_alpha" if name == "kaula" else name,
                 folds=self.folds,
-                group=self.cv_setting(name)[0],
-                rule=self.cv_setting(name)[1],
+                group=group,
+                rule=rule,
                 seed=self.seed,
                 reference=partial(_no_correction_costs, first, arcs),
                 mapper=self.mapper,
