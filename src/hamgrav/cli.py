@@ -534,13 +534,7 @@ def simulate(
     from .sizing import check_memory, memory_limit
 
     limit = memory_limit(max_memory)
-    _output(output, CAMPAIGN=campaign)
-    if spk is not None:
-        check_output(spk, "--spk", {"CAMPAIGN": campaign, "-o": output})
-    if oem is not None:
-        if oem.exists() and not oem.is_dir():
-            raise InputError(f"--oem {oem} exists and is not a folder; give a folder path")
-        check_writable_folder(oem, "--oem")
+    _simulate_outputs(campaign, output, oem, spk)
     config = load_campaign(campaign)
     try:  # before the simulation starts
         check_body_name(config.body)
@@ -570,6 +564,18 @@ def simulate(
         f"wrote {arcs.n_arcs} arcs of {arcs.samples_per_arc} samples "
         f"({arcs.n_arcs * arcs.samples_per_arc * 6} scalars) to {output}"
     )
+
+
+def _simulate_outputs(campaign: Path, output: Path, oem: Path | None, spk: Path | None) -> None:
+    """simulate's output paths checked before the simulation: the arcs file, the SPK file
+    and the OEM folder, each writable and none of them an input."""
+    _output(output, CAMPAIGN=campaign)
+    if spk is not None:
+        check_output(spk, "--spk", {"CAMPAIGN": campaign, "-o": output})
+    if oem is not None:
+        if oem.exists() and not oem.is_dir():
+            raise InputError(f"--oem {oem} exists and is not a folder; give a folder path")
+        check_writable_folder(oem, "--oem")
 
 
 def _rotation_option(pole_ra, pole_dec, prime_meridian, rotation_epoch, body):
@@ -988,17 +994,14 @@ def fit(
     The model file is written in every case, with the fit's outcome and diagnostics. An
     interrupted fit keeps a checkpoint beside it (OUTPUT.checkpoint.npz): --resume continues
     it, and a fresh fit refuses to start over it."""
-    from .fit.selection import GROUPS as CV_GROUPS
     from .io.arcs import load_arcs
     from .io.fit_run import checkpoint_for_fit, prepare_fit
     from .sizing import memory_limit
 
     # options, then the output, then the inputs: all before any computation
     settings, kaula_value, hidden_sizes = _fit_options(
-        model, hidden, prior, solver, kaula, harmonic, folds, workers, scheduler, steps
+        model, hidden, prior, solver, kaula, harmonic, folds, cv_group, workers, scheduler, steps
     )
-    if cv_group is not None and cv_group not in CV_GROUPS:
-        raise InputError(f"--cv-group must be one of {', '.join(CV_GROUPS)}, got {cv_group!r}")
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)
     limit = memory_limit(max_memory)
@@ -1009,11 +1012,18 @@ def fit(
     body_obj = _body_for(body, arcs=arcs)
     settings |= {"adam_steps": steps, "learning_rate": learning_rate}
     settings |= {"prior": prior, "kaula": kaula_value, "seed": seed, "folds": folds}
-    settings["cv_group"] = cv_group
     estimator = _fit_estimator(settings, arcs, arcs_file, weighted, body_obj)
     run = prepare_fit(
         estimator, arcs, output, init=init, resume=resume, checkpoint=ckpt, init_name="--init"
     )
+    _run_and_write(run, arcs_file, workers, scheduler, steps)
+    _report_fit(estimator, output, settings["term"], strict)
+
+
+def _run_and_write(run, arcs_file: Path, workers: int, scheduler, steps: int) -> None:
+    """Run the prepared fit ``run`` and write its model; a fit stopped by a signal, a full
+    disk or a lost cluster ends in one line that says what was kept (:func:`_fit_stopped`)."""
+    output, ckpt = run.output, run.checkpoint
     before = _file_id(output)  # to tell, if stopped, whether this run wrote the model
     try:
         _run_fit(run, workers, scheduler, steps)
@@ -1027,7 +1037,6 @@ def fit(
         if stop is None:
             raise
         _fit_stopped(stop, ckpt, output, written=_file_id(output) not in (None, before))
-    _report_fit(estimator, output, settings["term"], strict)
 
 
 def _fit_estimator(settings: dict, arcs, arcs_file: Path, weighted: bool, body_obj):
@@ -1044,11 +1053,15 @@ def _fit_estimator(settings: dict, arcs, arcs_file: Path, weighted: bool, body_o
 
 
 def _fit_options(
-    model, hidden, prior, solver, kaula, harmonic, folds, workers, scheduler, steps
+    model, hidden, prior, solver, kaula, harmonic, folds, cv_group, workers, scheduler, steps
 ) -> tuple[dict, float | str | None, tuple[int, ...]]:
-    """fit's options checked: (estimator settings of --model, --hidden, --solver and
-    --harmonic; the --kaula value; the hidden layer sizes)."""
-    settings = _model_option(model)
+    """fit's options checked: (estimator settings of --model, --hidden, --solver,
+    --harmonic and --cv-group; the --kaula value; the hidden layer sizes)."""
+    from .fit.selection import GROUPS as CV_GROUPS
+
+    if cv_group is not None and cv_group not in CV_GROUPS:
+        raise InputError(f"--cv-group must be one of {', '.join(CV_GROUPS)}, got {cv_group!r}")
+    settings = _model_option(model) | {"cv_group": cv_group}
     term = settings["term"]
     hidden_sizes = tuple(_ints(hidden, "--hidden"))
     if max(hidden_sizes) > MAX_HIDDEN:
@@ -1298,12 +1311,8 @@ def evaluate(
     from .io.models import load_model
 
     if points_file is not None:
-        if arcs_file is not None or uncertainty or figure is not None:
-            raise InputError(
-                "--points evaluates the model alone at the points; leave out --arcs, "
-                "--uncertainty and --figure, or run evaluate without --points for them"
-            )
-        _evaluate_at_points(model_file, points_file, output, as_json)
+        alone = arcs_file is None and not uncertainty and figure is None
+        _evaluate_at_points(model_file, points_file, output, as_json, alone)
         return
     if output is not None:
         raise InputError(
@@ -1412,14 +1421,22 @@ NO_TRUTH_NOTE = (
 )
 
 
-def _evaluate_at_points(model_file: Path, points_file: Path, output: Path | None, as_json: bool):
+def _evaluate_at_points(
+    model_file: Path, points_file: Path, output: Path | None, as_json: bool, alone: bool
+):
     """evaluate --points: the field of the model at the points of ``points_file`` [m],
-    written as CSV to ``output`` (columns in :func:`evaluate`'s docstring)."""
+    written as CSV to ``output`` (columns in :func:`evaluate`'s docstring); refused unless
+    ``alone`` (no --arcs, --uncertainty or --figure given)."""
     import numpy as np
 
     from .io.models import load_model
     from .io.points import read_points_csv, write_columns_csv
 
+    if not alone:
+        raise InputError(
+            "--points evaluates the model alone at the points; leave out --arcs, "
+            "--uncertainty and --figure, or run evaluate without --points for them"
+        )
     if output is None:
         raise InputError(f"--points {points_file} needs -o FIELD.csv, the file to write")
     output = _output(output, "-o", model=model_file, points=points_file)
@@ -1823,6 +1840,33 @@ def _experiment_command(experiment):
     return command
 
 
+# The runner's options of every experiment command: (name, type, default, help); {output}
+# is the experiment's default output folder.
+RUNNER_OPTIONS = (
+    ("config", Path | None, None, "Config file (TOML); options given here override it."),
+    ("seed", int, 0, "First seed; repetitions use seed, seed+1, ..."),
+    ("repeat", int, 1, "Repetitions (seeds redraw truth mascons, orbits, noise, descents)."),
+    ("output", Path | None, None, "Output folder [default: {output}]."),
+    ("workers", int, 0, "Run on a Dask LocalCluster of N worker processes (0: in-process)."),
+    ("scheduler", str | None, None, "Address of an existing Dask scheduler."),
+    (
+        "distribute_fits",
+        bool,
+        False,
+        "Send each fit's arcs to the cluster's workers, which compute its sums over arcs "
+        "(with --workers or --scheduler; numbers as in-process, to rounding).",
+    ),
+    (
+        "max_memory",
+        str | None,
+        None,
+        "Refuse the run before it starts if the repetitions that run at once need more "
+        "memory than this (e.g. 8GiB; default: the memory available now; per worker with "
+        "--scheduler, where nothing is checked without it).",
+    ),
+)
+
+
 def _experiment_params(experiment) -> list[inspect.Parameter]:
     """The options of an experiment's command: one per field of its config (default None:
     the config's own), then the runner's (config file, seed, repeat, output, workers,
@@ -1848,30 +1892,8 @@ def _experiment_params(experiment) -> list[inspect.Parameter]:
                 ],
             )
         )
-    runner_params = [
-        ("config", Path | None, None, "Config file (TOML); options given here override it."),
-        ("seed", int, 0, "First seed; repetitions use seed, seed+1, ..."),
-        ("repeat", int, 1, "Repetitions (seeds redraw truth mascons, orbits, noise, descents)."),
-        ("output", Path | None, None, f"Output folder [default: {experiment.default_output}]."),
-        ("workers", int, 0, "Run on a Dask LocalCluster of N worker processes (0: in-process)."),
-        ("scheduler", str | None, None, "Address of an existing Dask scheduler."),
-        (
-            "distribute_fits",
-            bool,
-            False,
-            "Send each fit's arcs to the cluster's workers, which compute its sums over arcs "
-            "(with --workers or --scheduler; numbers as in-process, to rounding).",
-        ),
-        (
-            "max_memory",
-            str | None,
-            None,
-            "Refuse the run before it starts if the repetitions that run at once need more "
-            "memory than this (e.g. 8GiB; default: the memory available now; per worker with "
-            "--scheduler, where nothing is checked without it).",
-        ),
-    ]
-    for name, kind, default, text in runner_params:
+    for name, kind, default, text in RUNNER_OPTIONS:
+        text = text.replace("{output}", str(experiment.default_output))
         opt = (
             typer.Option("-o", "--output", help=text)
             if name == "output"
