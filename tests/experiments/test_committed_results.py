@@ -68,3 +68,20 @@ def test_committed_command_gives_the_recorded_config(path, monkeypatch):
     assert not differing, f"{path}: recorded vs the command's config: {differing}"
     gone = set(report["config"]) - set(seen["config"])
     assert not gone, f"{path}: recorded options the experiment no longer has: {sorted(gone)}"
+
+
+@pytest.mark.parametrize("path", REPORTS, ids=lambda p: p.parent.name)
+def test_committed_readme_renders_from_its_results(path):
+    # a change of the report code that moves a committed README's text must regenerate it
+    # (hamgrav experiment readme) and commit it with the reason, never drift silently
+    from hamgrav.experiments.registry import get_experiment
+    from hamgrav.experiments.runner import read_report, readme_lines
+
+    folder = path.parent
+    report = read_report(folder)
+    report.setdefault("figures", sorted(p.name for p in folder.glob("*.png")))
+    lines = readme_lines(get_experiment(report["experiment"]), report, folder)
+    rendered = "\n".join(lines).rstrip("\n") + "\n"
+    assert rendered == (folder / "README.md").read_text(), (
+        f"{folder}/README.md differs from its rendering: run hamgrav experiment readme {folder}"
+    )

@@ -103,7 +103,29 @@ __all__ = [
     "random_orders",
     "evaluate",
     "campaign_descents",
+    "PAPER",
 ]
+
+#: The paper's numbers (67P, 126 arcs, one run): SH 8 exterior error (shells 1.2-1.7 R_B);
+#: 300 m above the surface inside the Brillouin sphere, SH 4 / 8 / 12; the network's deepest
+#: and worst radial bin; median error over the patches where SH is worse than no correction.
+PAPER = {
+    "sh8_exterior": 0.012,
+    "deep": {"sh4": 0.65, "sh8": 1.34, "sh12": 45.0},
+    "network_deepest_bin": 0.29,
+    "network_worst_bin": 0.51,
+    "patch_median_sh": 2.7,
+    "patch_median_network": 0.27,
+    # after the nine descents: the network's deepest bin; SH 8 and SH 12 on the deep set
+    "after_descents": {"network_deepest_bin": 0.15, "sh8": 1.5, "sh12": 7.6},
+    # the network's mean exterior error under five random arrival orders
+    "random_after_6": (0.37, 1.06),
+    "random_after_18": (0.20, 0.26),
+    # the D-optimal campaign after 15 orbits; below every random order from 12 orbits on
+    "d_optimal_15": 0.14,
+    "d_optimal_below_from": 12,
+}
+
 
 #: Result key of the network row (the ``network-best`` configuration).
 NETWORK = "network-best"
@@ -673,7 +695,7 @@ class DeepExperiment(Experiment):
         return out
 
     def readme(self, report: dict) -> list[str]:
-        return deep_readme(report)
+        return deep_readme(report, PAPER)
 
     def figures(self, report: dict, artefacts: dict) -> dict:
         figures = {

@@ -25,6 +25,7 @@ from .. import __version__
 from ..bodies.catalogue import bodies_dir, check_body_name
 from ..errors import InputError
 from ..files import make_folder, written_together
+from ..report.readme import results_readme
 from ..report.tables import aggregate, format_range, summarise
 from ..report.writer import save_figure, write_json, write_text
 from .base import Experiment, RunContext, RunOutput, _silent
@@ -419,47 +420,13 @@ def write_readme(experiment: Experiment, report: dict, folder: Path) -> None:
 
 def readme_lines(experiment: Experiment, report: dict, folder: Path) -> list[str]:
     """The lines of README.md of ``report`` (the notes file is read from ``folder``)."""
-    figures = report.get("figures", [])
-    n = len(report["repetitions"])
-    header = [
-        f"# {experiment.title}",
-        "",
-        "Regenerate with:",
-        "",
-        f"    {report['command']}",
-        "",
-        f"{n} repetition(s), seeds {report['seeds'][0]}-{report['seeds'][-1]} "
-        f"({report['dispatch']}), {report['wall_s']:.0f} s in all. "
-        + (
-            "Tables give the median over the repetitions and, in brackets, min-max."
-            if n > 1
-            else "One repetition: the tables give its values."
-        ),
-        "",
-    ]
-    if report.get("merged_from"):
-        header += [
-            "Merged (`hamgrav experiment merge`) from runs of the same config on other seeds, "
-            "each repetition a function of its seed alone:",
-            "",
-            *(
-                f"- seeds {run['seeds'][0]}-{run['seeds'][-1]}: `{run['command']}`"
-                for run in report["merged_from"]
-            ),
-            "",
-        ]
-    lines = header + experiment.readme(report)
-    if figures:
-        captions = experiment.figure_captions
-        lines += ["", "Figures:", ""] + [
-            f"- `{name}`" + (f": {captions[name]}" if name in captions else "") for name in figures
-        ]
     notes = folder / NOTES_FILE
-    if notes.is_file():
+    return results_readme(
+        experiment.title,
+        report,
+        experiment.readme(report),
+        experiment.figure_captions,
         # the analysts' reading of these numbers (why they differ from the paper's), kept by
         # hand beside the generated tables and carried over when the README is re-rendered
-        lines += ["", "## Notes", "", notes.read_text().strip()]
-    config = report["config"]
-    lines += ["", "## Configuration", "", "| option | value |", "|---|---|"]
-    lines += [f"| {k} | {v} |" for k, v in config.items()]
-    return lines
+        notes.read_text() if notes.is_file() else None,
+    )

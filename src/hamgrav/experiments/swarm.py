@@ -456,7 +456,7 @@ class SwarmExperiment(Experiment):
         return {key: _nested_summary([r[key] for r in repetitions]) for key in self.aggregate_keys}
 
     def readme(self, report: dict) -> list[str]:
-        return swarm_readme(report, PAPER_NETWORK)
+        return swarm_readme(report, PAPER_NETWORK, PAPER_SWARM)
 
     def figures(self, report: dict, artefacts: dict) -> dict:
         return {"swarm.png": swarm_figure(report["repetitions"][0], artefacts)}

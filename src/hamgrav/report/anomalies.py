@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from .paper import met, with_paper
 from .tables import format_range
 
 __all__ = ["maps_figure", "anomalies_readme"]
@@ -27,10 +28,6 @@ def maps_figure(maps: dict) -> Figure:
     axes[0].set_ylabel("latitude [deg]")
     fig.colorbar(image, ax=list(axes), shrink=0.8, label="potential [canonical]")
     return fig
-
-
-def _met(ok: bool) -> str:
-    return "met" if ok else "not met"
 
 
 _FRAME_SENTENCE = {
@@ -67,7 +64,7 @@ def anomalies_readme(report: dict, paper: dict[str, tuple]) -> list[str]:
     for name, errs in agg.items():
         cells = [format_range(errs[k], "{:.3f}") for k in sets]
         if name in paper:
-            cells = [f"{c} ({p:g})" for c, p in zip(cells, paper[name], strict=False)]
+            cells = [with_paper(c, p, "{:g}") for c, p in zip(cells, paper[name], strict=False)]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", "Kaula alpha chosen, per repetition:", ""]
     for name in first["kaula_alpha"]:
@@ -86,7 +83,7 @@ def anomalies_readme(report: dict, paper: dict[str, tuple]) -> list[str]:
     lines += [
         "- network residual, median over repetitions: "
         + ", ".join(f"{k} {v:.3f}" for k, v in worst.items())
-        + f" (target <= 0.18 on every shell: {_met(max(worst.values()) <= 0.18)}).",
+        + f" (target <= 0.18 on every shell: {met(max(worst.values()) <= 0.18)}).",
         f"- best SH option of any degree and regularisation over the network, on the shell "
         f"where it comes closest: {np.median(ratio):.1f}x (median; {min(ratio):.1f}-"
         f"{max(ratio):.1f}x over {len(reps)} repetition(s); target >= 3x).",

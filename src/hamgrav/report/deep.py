@@ -14,10 +14,10 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
 from .figures import orbits_and_radii_figure
+from .paper import TARGET_COLUMNS, Claim, claims_table, count_applicable, count_draws
 from .tables import format_range
 
 __all__ = [
-    "PAPER",
     "deep_readme",
     "geometry_figure",
     "bins_figure",
@@ -25,26 +25,6 @@ __all__ = [
     "descents_figure",
     "orders_figure",
 ]
-
-#: The paper's numbers (67P, 126 arcs, one run): SH 8 exterior error (shells 1.2-1.7 R_B);
-#: 300 m above the surface inside the Brillouin sphere, SH 4 / 8 / 12; the network's deepest
-#: and worst radial bin; median error over the patches where SH is worse than no correction.
-PAPER = {
-    "sh8_exterior": 0.012,
-    "deep": {"sh4": 0.65, "sh8": 1.34, "sh12": 45.0},
-    "network_deepest_bin": 0.29,
-    "network_worst_bin": 0.51,
-    "patch_median_sh": 2.7,
-    "patch_median_network": 0.27,
-    # after the nine descents: the network's deepest bin; SH 8 and SH 12 on the deep set
-    "after_descents": {"network_deepest_bin": 0.15, "sh8": 1.5, "sh12": 7.6},
-    # the network's mean exterior error under five random arrival orders
-    "random_after_6": (0.37, 1.06),
-    "random_after_18": (0.20, 0.26),
-    # the D-optimal campaign after 15 orbits; below every random order from 12 orbits on
-    "d_optimal_15": 0.14,
-    "d_optimal_below_from": 12,
-}
 
 
 def _sh_rows(models) -> list[str]:
@@ -61,19 +41,6 @@ def _cell(summary: dict, model: str, key: str, fmt: str = "{:.3g}") -> str:
     return format_range(summary.get(model, {}).get(key), fmt)
 
 
-def _count(reps: list[dict], test) -> str:
-    """``n of N``: repetitions where ``test(rep)`` holds (a missing value fails)."""
-    return f"{sum(bool(test(r)) for r in reps)} of {len(reps)}"
-
-
-def _count_applicable(reps: list[dict], test) -> str:
-    """``n of N`` over the repetitions where ``test(rep)`` is not None (a statement that does
-    not apply, e.g. no stage with 15 orbits); "-" when it applies to none."""
-    verdicts = [test(r) for r in reps]
-    known = [v for v in verdicts if v is not None]
-    return f"{sum(bool(v) for v in known)} of {len(known)}" if known else "-"
-
-
 def _le(value, bound) -> bool:
     return value is not None and value <= bound
 
@@ -82,8 +49,9 @@ def _gt(value, bound) -> bool:
     return value is not None and value > bound
 
 
-def deep_readme(report: dict) -> list[str]:
-    """README lines of a deep-region report."""
+def deep_readme(report: dict, paper: dict) -> list[str]:
+    """README lines of a deep-region report; ``paper``: the paper's numbers
+    (:data:`hamgrav.experiments.deep.PAPER`)."""
     reps = report["repetitions"]
     cfg = report["config"]
     first = reps[0]
@@ -131,7 +99,7 @@ def deep_readme(report: dict) -> list[str]:
             f"{q['median']:.3f} | {q['q3']:.3f} | {q['max']:.3f} | {q['below_floor']} |"
         )
     lines += ["", "## Against the paper", ""]
-    lines += _paper_rows(reps, summary, sh, net, deepest, cfg["altitude_m"])
+    lines += _paper_rows(reps, summary, sh, net, deepest, cfg["altitude_m"], paper)
     lines += [
         "",
         "## Final models",
@@ -214,41 +182,55 @@ def _one(value) -> dict | None:
     return {"median": value, "min": value, "max": value, "n": 1}
 
 
-def _paper_rows(reps, summary, sh, net, deepest, altitude) -> list[str]:
+def _paper_rows(reps, summary, sh, net, deepest, altitude, paper) -> list[str]:
     """The paper's numbers (300 m above the surface) beside ours at ``altitude`` [m] (median,
     min-max over the repetitions)."""
-    deep = PAPER["deep"]
+    deep = paper["deep"]
     sh_deep = [d for d in deep if d in sh]
-    rows = [
-        "| quantity | ours | paper | target | met |",
-        "|---|---|---|---|---|",
-        f"| SH 8 exterior error, shells 1.2-1.7 R_B | {_cell(summary, 'sh8', 'exterior')} | "
-        f"{PAPER['sh8_exterior']} | | |",
-        "| SH "
-        + " / ".join(d[2:] for d in deep)
-        + f", {altitude:g} m set inside R_B | "
-        + " / ".join(_cell(summary, d, "deep") for d in deep)
-        + " | "
-        + " / ".join(f"{v:g}" for v in deep.values())
-        + " | | |",
-        f"| SH 8 at {altitude:g} m worse than no correction | {_cell(summary, 'sh8', 'deep')} | "
-        f"{deep['sh8']} | > 1 | "
-        + (_count(reps, lambda r: _gt(r["summary"]["sh8"]["deep"], 1.0)) if "sh8" in sh else "-")
-        + " |",
-        f"| network, deepest bin ({deepest}) | {_cell(summary, net, 'deepest_bin')} | "
-        f"{PAPER['network_deepest_bin']} | <= {PAPER['network_deepest_bin']} | "
-        + _count(reps, lambda r: _le(r["summary"][net]["deepest_bin"], 0.29))
-        + " |",
-        f"| network, worst bin | {_cell(summary, net, 'worst_bin')} | "
-        f"{PAPER['network_worst_bin']} | | |",
-        "| patch median, SH 8 / 12 | "
-        + " / ".join(_cell(summary, m, "patch_median") for m in ("sh8", "sh12"))
-        + " | "
-        f"{PAPER['patch_median_sh']} | | |",
-        f"| patch median, network | {_cell(summary, net, 'patch_median')} | "
-        f"{PAPER['patch_median_network']} | | |",
+    bound = paper["network_deepest_bin"]
+    claims = [
+        Claim(
+            "SH 8 exterior error, shells 1.2-1.7 R_B",
+            f"{paper['sh8_exterior']}",
+            _cell(summary, "sh8", "exterior"),
+        ),
+        Claim(
+            "SH " + " / ".join(d[2:] for d in deep) + f", {altitude:g} m set inside R_B",
+            " / ".join(f"{v:g}" for v in deep.values()),
+            " / ".join(_cell(summary, d, "deep") for d in deep),
+        ),
+        Claim(
+            f"SH 8 at {altitude:g} m worse than no correction",
+            f"{deep['sh8']}",
+            _cell(summary, "sh8", "deep"),
+            "> 1",
+            count_draws(_gt(r["summary"]["sh8"]["deep"], 1.0) for r in reps)
+            if "sh8" in sh
+            else "-",
+        ),
+        Claim(
+            f"network, deepest bin ({deepest})",
+            f"{bound}",
+            _cell(summary, net, "deepest_bin"),
+            f"<= {bound}",
+            count_draws(_le(r["summary"][net]["deepest_bin"], bound) for r in reps),
+        ),
+        Claim(
+            "network, worst bin", f"{paper['network_worst_bin']}", _cell(summary, net, "worst_bin")
+        ),
+        Claim(
+            "patch median, SH 8 / 12",
+            f"{paper['patch_median_sh']}",
+            " / ".join(_cell(summary, m, "patch_median") for m in ("sh8", "sh12")),
+        ),
+        Claim(
+            "patch median, network",
+            f"{paper['patch_median_network']}",
+            _cell(summary, net, "patch_median"),
+        ),
+        *_later_claims(reps, net, deepest, paper),
     ]
-    rows += _later_paper_rows(reps, summary, net, deepest)
+    rows = claims_table(claims, TARGET_COLUMNS)
     if len(sh_deep) < len(deep):
         rows.append("")
         rows.append("(-: a degree the paper quotes was not fitted in this run.)")
@@ -286,73 +268,83 @@ def _first_picks_polar(rep: dict, top_inclination: float) -> bool | None:
     return all(p[1] == top_inclination for p in picks) and len(radii) == len(picks)
 
 
-def _later_paper_rows(reps, summary, net, deepest) -> list[str]:
-    """The paper's rows of the descent assimilation, the arrival orders and the D-optimal
-    campaign beside ours (median, min-max over the repetitions)."""
-    rows = []
-    after = PAPER["after_descents"]
+def _later_claims(reps, net, deepest, paper) -> list[Claim]:
+    """The paper's statements of the descent assimilation, the arrival orders and the
+    D-optimal campaign beside ours (median, min-max over the repetitions)."""
+    claims = []
+    after = paper["after_descents"]
     if any("descents_summary" in r for r in reps):
         d_agg = _aggregate_of(reps, "descents_summary")
-        rows += [
-            f"| network, deepest bin ({deepest}) after the descents | "
-            f"{_cell(d_agg, net, 'deepest_bin_after')} | {after['network_deepest_bin']} | "
-            f"<= {after['network_deepest_bin']} | "
-            + _count(
-                reps,
-                lambda r: _le(
-                    r.get("descents_summary", {}).get(net, {}).get("deepest_bin_after"),
-                    after["network_deepest_bin"],
+        bound = after["network_deepest_bin"]
+        claims += [
+            Claim(
+                f"network, deepest bin ({deepest}) after the descents",
+                f"{bound}",
+                _cell(d_agg, net, "deepest_bin_after"),
+                f"<= {bound}",
+                count_draws(
+                    _le(r.get("descents_summary", {}).get(net, {}).get("deepest_bin_after"), bound)
+                    for r in reps
                 ),
-            )
-            + " |",
-            "| SH 8 / 12 after the descents, deep set (before) | "
-            + " / ".join(
-                f"{_cell(d_agg, m, 'deep_after')} ({_cell(d_agg, m, 'deep_before')})"
-                for m in ("sh8", "sh12")
-            )
-            + f" | {after['sh8']:g} / {after['sh12']:g} (1.34 / 45) | | |",
+            ),
+            Claim(
+                "SH 8 / 12 after the descents, deep set (before)",
+                f"{after['sh8']:g} / {after['sh12']:g} (1.34 / 45)",
+                " / ".join(
+                    f"{_cell(d_agg, m, 'deep_after')} ({_cell(d_agg, m, 'deep_before')})"
+                    for m in ("sh8", "sh12")
+                ),
+            ),
         ]
     if any(r.get("orders", {}).get("random") for r in reps):
-        lo6, hi6 = PAPER["random_after_6"]
-        lo18, hi18 = PAPER["random_after_18"]
-        rows += [
-            "| random orders after 6 orbits, luckiest / unluckiest | "
-            + " / ".join(_order_cell(reps, c, 6) for c in ("random-best", "random-worst"))
-            + f" | {lo6} / {hi6} | | |",
-            "| random orders after 18 orbits, luckiest / unluckiest | "
-            + " / ".join(_order_cell(reps, c, 18) for c in ("random-best", "random-worst"))
-            + f" | {lo18}-{hi18} | | |",
+        lo6, hi6 = paper["random_after_6"]
+        lo18, hi18 = paper["random_after_18"]
+        claims += [
+            Claim(
+                "random orders after 6 orbits, luckiest / unluckiest",
+                f"{lo6} / {hi6}",
+                " / ".join(_order_cell(reps, c, 6) for c in ("random-best", "random-worst")),
+            ),
+            Claim(
+                "random orders after 18 orbits, luckiest / unluckiest",
+                f"{lo18}-{hi18}",
+                " / ".join(_order_cell(reps, c, 18) for c in ("random-best", "random-worst")),
+            ),
         ]
     if any("d-optimal" in r.get("orders", {}) for r in reps):
-        d15, from_n = PAPER["d_optimal_15"], PAPER["d_optimal_below_from"]
+        d15, from_n = paper["d_optimal_15"], paper["d_optimal_below_from"]
         top = max(
             p["inclination_deg"] for r in reps for stage in r["d_optimal_picks"] for p in stage
         )
-        rows += [
-            f"| D-optimal after 15 orbits | {_order_cell(reps, 'd-optimal', 15)} | {d15} | "
-            f"<= {d15} | "
-            + _count_applicable(
-                reps,
-                lambda r: (
-                    None
-                    if _orders_value(r, "d-optimal", 15) is None
-                    else _le(_orders_value(r, "d-optimal", 15), d15)
-                ),
-            )
-            + " |",
-            f"| D-optimal below every random order from {from_n} orbits on | | yes | yes | "
-            + _count_applicable(reps, lambda r: _d_optimal_below(r, from_n))
-            + " |",
-            f"| D-optimal first picks: {top:g} deg, each at another start radius | "
-            + "; ".join(
-                ", ".join(f"{p[0]:g}/{p[1]:g}" for p in r.get("d_optimal_first_picks", []))
-                for r in reps
-            )
-            + " (R_B/deg) | 80 deg x 3 radii | | "
-            + _count_applicable(reps, lambda r: _first_picks_polar(r, top))
-            + " |",
+        after_15 = [_orders_value(r, "d-optimal", 15) for r in reps]
+        claims += [
+            Claim(
+                "D-optimal after 15 orbits",
+                f"{d15}",
+                _order_cell(reps, "d-optimal", 15),
+                f"<= {d15}",
+                count_applicable(None if v is None else _le(v, d15) for v in after_15),
+            ),
+            Claim(
+                f"D-optimal below every random order from {from_n} orbits on",
+                "yes",
+                "",
+                "yes",
+                count_applicable(_d_optimal_below(r, from_n) for r in reps),
+            ),
+            Claim(
+                f"D-optimal first picks: {top:g} deg, each at another start radius",
+                "80 deg x 3 radii",
+                "; ".join(
+                    ", ".join(f"{p[0]:g}/{p[1]:g}" for p in r.get("d_optimal_first_picks", []))
+                    for r in reps
+                )
+                + " (R_B/deg)",
+                "",
+                count_applicable(_first_picks_polar(r, top) for r in reps),
+            ),
         ]
-    return rows
+    return claims
 
 
 def _aggregate_of(reps: list[dict], key: str) -> dict:

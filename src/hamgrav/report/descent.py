@@ -8,6 +8,7 @@ import re
 
 import numpy as np
 
+from .paper import with_paper
 from .tables import format_range, range_row
 
 __all__ = ["data_coverage", "descent_readme"]
@@ -50,7 +51,7 @@ def descent_readme(report: dict, paper: dict) -> list[str]:
         cells = [format_range(stats.get(k)) for k in ("median_m", "p90_m", "worst_m")]
         cells.append(format_range(stats.get("landed"), "{:.0f}") + f"/{stats['total']['max']:.0f}")
         if name in paper:
-            cells = [f"{c} ({p})" for c, p in zip(cells, paper[name], strict=True)]
+            cells = [with_paper(c, p) for c, p in zip(cells, paper[name], strict=True)]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     sets = list(next(iter(agg["field_error"].values())))
     best_row = _best_row(cfg)

@@ -16,9 +16,10 @@ def _ratio_text(values: list[float]) -> str:
     return f"{np.median(values):.2f} ({min(values):.2f}-{max(values):.2f})"
 
 
-def interiors_readme(report: dict) -> list[str]:
+def interiors_readme(report: dict, paper: dict) -> list[str]:
     """README lines: per truth, the field-error table (median and range over repetitions),
-    then the paper's statements checked."""
+    then the paper's statements checked; ``paper``: the paper's numbers
+    (:data:`hamgrav.experiments.interiors.PAPER`)."""
     reps = report["repetitions"]
     cfg = report["config"]
     agg = report["aggregate"]["field_error"]
@@ -54,10 +55,12 @@ def interiors_readme(report: dict) -> list[str]:
         lines.append(
             f"- {interior}: the shape misses {100 * min(missed[0]):.0f}-"
             f"{100 * max(missed[1]):.0f} % of the perturbing field on the shells "
-            f"(paper, head/tail: 15-21 %); the residual network beats the prior on every set "
-            f"in {better_prior} of {len(fe)}; at 1.05 R_B it is {_ratio_text(scratch_ratio)}x "
-            f"better than the network from scratch (paper: 4.4x) and on the shells at least "
-            f"{_ratio_text(prior_ratio)}x better than the prior (paper, void: more than 2x)."
+            f"(paper, head/tail: {paper['missed_fraction']}); the residual network beats the "
+            f"prior on every set in {better_prior} of {len(fe)}; at 1.05 R_B it is "
+            f"{_ratio_text(scratch_ratio)}x better than the network from scratch (paper: "
+            f"{paper['residual_over_scratch_r1.05']:g}x) and on the shells at least "
+            f"{_ratio_text(prior_ratio)}x better than the prior (paper, void: "
+            f"{paper['void_residual_over_prior']})."
         )
     if "head-tail" in cfg["truths"]:
         r105 = [r["truths"]["head-tail"]["field_error"]["shape+network"]["r1.05"] for r in reps]
@@ -65,10 +68,12 @@ def interiors_readme(report: dict) -> list[str]:
             r["truths"]["head-tail"]["field_error"]["network-scratch"]["r1.05"] for r in reps
         ]
         prior = [r["truths"]["head-tail"]["field_error"]["shape"]["r1.05"] for r in reps]
+        quoted = {k: v["r1.05"] for k, v in paper["head-tail"].items()}
         lines.append(
-            f"- head-tail at 1.05 R_B: residual network {_ratio_text(r105)} (target <= 0.11), "
-            f"network from scratch {_ratio_text(scratch)} (paper 0.489), prior alone "
-            f"{_ratio_text(prior)} (paper 0.160)."
+            f"- head-tail at 1.05 R_B: residual network {_ratio_text(r105)} (target <= "
+            f"{quoted['shape+network']:g}), network from scratch {_ratio_text(scratch)} (paper "
+            f"{quoted['network-scratch']:.3f}), prior alone {_ratio_text(prior)} (paper "
+            f"{quoted['shape']:.3f})."
         )
     lines += [
         "",

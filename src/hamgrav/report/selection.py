@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from .paper import STATEMENT_COLUMNS, Claim, claims_table
 from .tables import range_row
 
 __all__ = ["selection_readme"]
@@ -29,38 +30,43 @@ def selection_readme(report: dict, truth_shell: float, within: float) -> list[st
         lines.append(range_row([row], errors, sets, after=[f"{worst:.3f}"]))
     cv_rows = [r for r in agg if r.startswith("sh") and (r.endswith("-cv") or r == "sh-auto")]
     worst_cv = {r: max(agg[r][s]["max"] for s in shells) for r in cv_rows}
-    lines += [
-        "",
-        "## The issue's statements",
-        "",
-        "| statement | ours | holds |",
-        "|---|---|---|",
-    ]
+    claims = []
     if worst_cv:
-        lines.append(
-            "| SH with a cross-validated alpha or degree never worse than no correction on the "
-            f"shells | worst {max(worst_cv.values()):.3f} ({max(worst_cv, key=worst_cv.get)}) | "
-            f"{'yes' if max(worst_cv.values()) < 1 else 'no'} |"
+        claims.append(
+            Claim(
+                "SH with a cross-validated alpha or degree never worse than no correction on "
+                "the shells",
+                ours=f"worst {max(worst_cv.values()):.3f} ({max(worst_cv, key=worst_cv.get)})",
+                verdict="yes" if max(worst_cv.values()) < 1 else "no",
+            )
         )
     weights = [r["network_weight"] for r in reps if r["network_weight"]]
     if weights:
         hits = sum(w["within"] for w in weights)
         ratios = sorted(w["cv_over_truth"] for w in weights)
-        lines.append(
-            f"| network-best's cross-validated weight within {within:.0%} of the truth-chosen "
-            f"weight's {truth_shell:g} R_B error in 7 of 8 | {hits} of {len(weights)} (ratio "
-            f"{ratios[len(ratios) // 2]:.3f}, worst {ratios[-1]:.3f}) | "
-            f"{'yes' if hits >= round(7 / 8 * len(weights)) else 'no'} |"
+        claims.append(
+            Claim(
+                f"network-best's cross-validated weight within {within:.0%} of the "
+                f"truth-chosen weight's {truth_shell:g} R_B error in 7 of 8",
+                ours=f"{hits} of {len(weights)} (ratio {ratios[len(ratios) // 2]:.3f}, worst "
+                f"{ratios[-1]:.3f})",
+                verdict="yes" if hits >= round(7 / 8 * len(weights)) else "no",
+            )
         )
         lowest = [w for w in weights if "lowest_within" in w]
         if len(lowest) == len(weights):
             hits = sum(w["lowest_within"] for w in lowest)
             ratios = sorted(w["lowest_over_truth"] for w in lowest)
-            lines.append(
-                "| (for comparison: the weight of lowest held-out cost, the 'lowest' rule on "
-                f"the same folds) | {hits} of {len(lowest)} (ratio "
-                f"{ratios[len(ratios) // 2]:.3f}, worst {ratios[-1]:.3f}) | - |"
+            claims.append(
+                Claim(
+                    "(for comparison: the weight of lowest held-out cost, the 'lowest' rule "
+                    "on the same folds)",
+                    ours=f"{hits} of {len(lowest)} (ratio {ratios[len(ratios) // 2]:.3f}, "
+                    f"worst {ratios[-1]:.3f})",
+                    verdict="-",
+                )
             )
+    lines += ["", "## The issue's statements", "", *claims_table(claims, STATEMENT_COLUMNS)]
     choosing = [row for row, c in first["chosen"].items() if c]
     lines += ["", "## What each draw chose", "", "| seed | " + " | ".join(choosing) + " |"]
     lines.append("|---|" + "---|" * len(choosing))
