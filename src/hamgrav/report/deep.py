@@ -272,7 +272,7 @@ def _later_claims(reps, net, deepest, paper) -> list[Claim]:
     """The paper's statements of the descent assimilation, the arrival orders and the
     D-optimal campaign beside ours (median, min-max over the repetitions)."""
     claims = []
-    after = paper["after_descents"]
+    after, before = paper["after_descents"], paper["deep"]
     if any("descents_summary" in r for r in reps):
         d_agg = _aggregate_of(reps, "descents_summary")
         bound = after["network_deepest_bin"]
@@ -289,7 +289,7 @@ def _later_claims(reps, net, deepest, paper) -> list[Claim]:
             ),
             Claim(
                 "SH 8 / 12 after the descents, deep set (before)",
-                f"{after['sh8']:g} / {after['sh12']:g} (1.34 / 45)",
+                f"{after['sh8']:g} / {after['sh12']:g} ({before['sh8']:g} / {before['sh12']:g})",
                 " / ".join(
                     f"{_cell(d_agg, m, 'deep_after')} ({_cell(d_agg, m, 'deep_before')})"
                     for m in ("sh8", "sh12")
