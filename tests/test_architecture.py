@@ -148,3 +148,40 @@ def test_every_experiment_module_is_in_the_table():
         if "(Experiment):" in path.read_text()
     }
     assert defining == listed
+
+
+def _calls_of(path: Path) -> set[str]:
+    """Names called as functions in the module at ``path`` (``Name(...)`` or ``x.Name(...)``)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Call):
+            f = node.func
+            names.add(f.id if isinstance(f, ast.Name) else getattr(f, "attr", ""))
+    return names
+
+
+def test_no_experiment_builds_an_estimator_by_hand():
+    # every row's estimator comes from experiments.common (row_estimator, fit_staged), so the
+    # body, seed, mapper and cluster of a repetition reach every fit the same way
+    builders = {"GravityEstimator"}
+    offenders = {
+        path.name
+        for path in (PACKAGE / "experiments").glob("*.py")
+        if path.name != "common.py" and _calls_of(path) & builders
+    }
+    assert not offenders
+    assert "GravityEstimator" in _calls_of(PACKAGE / "experiments" / "common.py")
+
+
+def test_report_modules_carry_no_paper_number_tables():
+    # the paper's numbers are data of the experiment modules, passed to the report renderers
+    for path in (PACKAGE / "report").glob("*.py"):
+        tree = ast.parse(path.read_text())
+        names = {
+            t.id
+            for node in tree.body
+            if isinstance(node, ast.Assign)
+            for t in node.targets
+            if isinstance(t, ast.Name)
+        }
+        assert not {n for n in names if n.startswith("PAPER")}, path.name

@@ -39,7 +39,7 @@ from ..core.mascons import mascon_potential
 from ..core.shexpansion import sh_potential
 from ..core.terms import SphericalHarmonics
 from ..errors import InputError
-from ..fit.estimator import GravityEstimator, body_for_model, preset
+from ..fit.estimator import DEFAULT_HIDDEN, body_for_model, preset
 from ..io.shformats import sh_export, write_icgem
 from ..io.spk import import_spk, write_spk
 from ..report.own_body import own_body_readme
@@ -94,7 +94,7 @@ class OwnBodyConfig(ExperimentConfig):
         expansion of the highest degree)."""
         from ..sizing import fit_bytes, network_parameters
 
-        hidden = GravityEstimator().hidden  # network-best's network: the estimator's default
+        hidden = DEFAULT_HIDDEN  # network-best's network
         sh = SphericalHarmonics(self.max_degree, 1.0).n_params
         n_params = max(sh, network_parameters(hidden))
         samples = TrackingConfig().samples_per_arc

@@ -55,6 +55,7 @@ __all__ = [
     "CV_DEFAULTS",
     "CV_HARMONIC_WEIGHTS",
     "CV_KAULA_ALPHAS",
+    "DEFAULT_HIDDEN",
     "DEFAULT_VALIDATION_FRACTION",
     "GravityEstimator",
     "MIN_ARCS_TO_HOLD_OUT",
@@ -106,6 +107,8 @@ NETWORK_BEST_SOLVER = LevenbergMarquardt(max_iter=20, rtol=1e-9, lambda0=1e-2, d
 #: results/descent-itokawa-x8); on 67P it keeps the network from bending below the arcs
 #: (deep-region error 1.13 -> 0.47, seed 0).
 NETWORK_BEST_HARMONIC = 1e-5
+#: Hidden layer sizes of the estimator's network (network-best's): 721 parameters.
+DEFAULT_HIDDEN = (24, 24)
 #: An ensemble member whose returned block costs more than this many times the best member's on
 #: the training arcs did not fit them (e.g. it returned an early best-validation iterate, or its
 #: initial block): the fit reports it, since the mean carries a third of its field. On the
@@ -448,7 +451,7 @@ class GravityEstimator:
         self,
         term: GravityTerm | str | None = "network",
         *,
-        hidden: Sequence[int] = (24, 24),
+        hidden: Sequence[int] = DEFAULT_HIDDEN,
         degree: int = 4,
         prior: str | None = None,
         prior_mascons: int = DEFAULT_PRIOR_MASCONS,
