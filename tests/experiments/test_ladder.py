@@ -7,7 +7,7 @@ import pytest
 
 from hamgrav.core.fields import field_errors, shell_points
 from hamgrav.errors import InputError
-from hamgrav.experiments.ladder import RUNGS, DeepLadderConfig, oracle_fit
+from hamgrav.experiments.ladder import DEFAULT_RUNGS, DeepLadderConfig, oracle_fit
 from hamgrav.experiments.runner import run_experiment
 from hamgrav.fit.estimator import GravityEstimator
 
@@ -76,11 +76,11 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
     report, _ = run_experiment("deep-ladder", config, seed=2, output=tmp_path, verbose=False)
     check_snapshot("deep-ladder", tmp_path / "results.json")
     ladder = report["repetitions"][0]["ladder"]
-    expected = {f"network/{r}" for r in RUNGS if r != "oracle-arcs"} | {
+    expected = {f"network/{r}" for r in DEFAULT_RUNGS if r != "oracle-arcs"} | {
         "network/oracle-arcs:0",
         "network/oracle-arcs:0.0001",
     }
-    expected |= {f"sh2/{r}" for r in RUNGS} | {"network-adam/tracking"}
+    expected |= {f"sh2/{r}" for r in DEFAULT_RUNGS} | {"network-adam/tracking"}
     assert all("on_points" in ladder[k] for k in expected if "oracle" in k)
     assert set(ladder) == expected
     assert all(np.isfinite(v["exterior"]) for v in ladder.values())
@@ -93,6 +93,42 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
     )
     assert (tmp_path / "ladder.png").stat().st_size > 0
     assert json.loads((tmp_path / "results.json").read_text())["config"]["sh_degree"] == 2
+
+
+def test_descents_rung_fits_the_arcs_and_the_descents_points(tmp_path):
+    # (b+e): rung (b) with the descents' true positions added, each set weighed alike
+    config = DeepLadderConfig(
+        body="synthetic",
+        n_mascons=60,
+        orbits=2,
+        arcs_per_orbit=3,
+        window_spin_periods=0.5,
+        radius_rb=(1.3, 1.9),
+        min_radius_rb=1.0,
+        hidden=(4,),
+        descents=2,
+        sh_degree=2,
+        oracle_altitudes_m=(20.0,),
+        altitude_m=40.0,
+        oracle_harmonic=(1e-4,),
+        shells_rb=(1.3,),
+        deep_bins_rb=(0.5, 0.95),
+        rungs=("oracle-arcs", "oracle-descents"),
+        oracle_balance=True,
+    )
+    report, _ = run_experiment("deep-ladder", config, seed=2, output=tmp_path, verbose=False)
+    rep = report["repetitions"][0]
+    points = rep["oracle_points"]
+    assert points["descents"] > 0 and points["arcs"] == 2 * 3 * 40
+    assert set(rep["ladder"]) == {
+        "network/oracle-arcs",
+        "network/oracle-descents",
+        "sh2/oracle-arcs",
+        "sh2/oracle-descents",
+    }
+    assert all(np.isfinite(v["on_points"]) for v in rep["ladder"].values())
+    readme = (tmp_path / "README.md").read_text()
+    assert readme.count("| (b+e)") == 2 and f"the descents' {points['descents']}" in readme
 
 
 def test_oracle_altitudes_above_the_brillouin_sphere_are_refused(tmp_path):

@@ -77,12 +77,17 @@ RUNGS = {
     "oracle-deep": "(a) fit to the true field inside R_B: the representation's floor",
     "oracle-arcs": "(b) fit to the true field where the arcs sample: the extrapolation floor",
     "oracle-both": "(a+b) fit to the true field inside R_B and where the arcs sample",
+    "oracle-descents": "(b+e) fit to the true field where the arcs and the descents sample: "
+    "what the descents could tell",
     "noise-free": "(c) tracking fit, noise-free arcs, true initial states",
     "tracking": "(d) tracking fit, noisy arcs (the real fit, all orbits at once)",
     "descents-warm": "(e) (d) warm-refitted with the tracked descents",
     "descents-scratch": "(e) one fit from scratch on the orbits and the descents",
 }
 #: The rungs that fit tracking arcs (the others fit the true field).
+#: The rungs run by default: every rung but (b+e), which asks whether the descents' samples
+#: hold the deep field's information (added after the first committed ladders).
+DEFAULT_RUNGS = tuple(r for r in RUNGS if r != "oracle-descents")
 TRACKING_RUNGS = ("noise-free", "tracking", "descents-warm", "descents-scratch")
 #: LM iteration cap of the oracle fits (per member): they start from the same
 #: initialisation as the tracking fit and have no validation stop.
@@ -115,7 +120,7 @@ class DeepLadderConfig(DeepCampaignConfig):
         nonempty=True,
     )
     rungs: tuple[str, ...] = option(
-        tuple(RUNGS),
+        DEFAULT_RUNGS,
         f"Rungs to run, among {', '.join(RUNGS)} (e.g. the oracle rungs alone to compare "
         "network shapes).",
         nonempty=True,
@@ -123,8 +128,8 @@ class DeepLadderConfig(DeepCampaignConfig):
 
     oracle_balance: bool = option(
         False,
-        "Weigh the two sets of rung (a+b) alike (each set's relative errors); off: one "
-        "normalisation over all points, where the deep field dominates.",
+        "Weigh the two sets of rung (a+b), and of rung (b+e), alike (each set's relative "
+        "errors); off: one normalisation over all points, where the deep field dominates.",
     )
     adam_rungs: tuple[str, ...] = option(
         (),
@@ -246,6 +251,8 @@ class DeepLadderExperiment(Experiment):
             )
             deep_points = deep_points[np.sort(draw)]
         arc_points = arcs.true_states[..., :3].reshape(-1, 3)
+        descent_points = descents.true_states[..., :3].reshape(-1, 3)
+        descent_points = descent_points[np.isfinite(descent_points).all(axis=1)]
         rows = {
             "network": network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic),
             f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
@@ -272,8 +279,12 @@ class DeepLadderExperiment(Experiment):
             "oracle-deep": deep_points,
             "oracle-arcs": arc_points,
             "oracle-both": np.concatenate([deep_points, arc_points]),
+            "oracle-descents": np.concatenate([arc_points, descent_points]),
         }
-        both_groups = np.repeat([0, 1], [len(deep_points), len(arc_points)])
+        groups_of = {
+            "oracle-both": np.repeat([0, 1], [len(deep_points), len(arc_points)]),
+            "oracle-descents": np.repeat([0, 1], [len(arc_points), len(descent_points)]),
+        }
         for row, settings in rows.items():
             wanted = set(config.adam_rungs if row == "network-adam" else config.rungs)
             settings = committed_holdout(settings)
@@ -287,11 +298,11 @@ class DeepLadderExperiment(Experiment):
             for rung, points in oracle_points.items():
                 if rung not in wanted:
                     continue
-                weights = config.oracle_harmonic if network and rung == "oracle-arcs" else (0.0,)
+                exterior = rung in ("oracle-arcs", "oracle-descents")
+                weights = config.oracle_harmonic if network and exterior else (0.0,)
                 for weight in weights:
                     name = f"{rung}:{weight:g}" if len(weights) > 1 else rung
-                    balance = rung == "oracle-both" and config.oracle_balance
-                    groups = both_groups if balance else None
+                    groups = groups_of.get(rung) if config.oracle_balance else None
                     fit = oracle_fit(
                         estimator(), arcs, points, truth, harmonic=weight, groups=groups
                     )
@@ -315,7 +326,16 @@ class DeepLadderExperiment(Experiment):
             "n_arcs": arcs.n_arcs,
             "n_descents": descents.n_arcs,
             "radius_rb": sample_radii(arcs, body.brillouin_radius, SAMPLE_FLOOR_RB),
-            "oracle_points": {"deep": int(len(deep_points)), "arcs": int(len(arc_points))},
+            "oracle_points": {
+                "deep": int(len(deep_points)),
+                "arcs": int(len(arc_points)),
+                # recorded only when that rung runs: the results of earlier ladders stay whole
+                **(
+                    {"descents": int(len(descent_points))}
+                    if "oracle-descents" in config.rungs
+                    else {}
+                ),
+            },
             "ladder": ladder,
             "fits": fits,
             "wall_s": round(time.perf_counter() - start, 1),

@@ -38,7 +38,13 @@ def ladder_readme(report: dict, rung_texts: dict[str, str]) -> list[str]:
         f"fitted on {first['oracle_points']['deep']} surface-following points inside R_B "
         f"(drawn from those at {', '.join(f'{h:g}' for h in config['oracle_altitudes_m'])} "
         "m), rung (b) on the "
-        f"{first['oracle_points']['arcs']} true sample positions of the arcs. Errors are "
+        f"{first['oracle_points']['arcs']} true sample positions of the arcs"
+        + (
+            f", rung (b+e) on those and the descents' {first['oracle_points']['descents']}"
+            if "descents" in first["oracle_points"]
+            else ""
+        )
+        + ". Errors are "
         "relative errors of the perturbing potential (1 = no correction): `on its points` an "
         "oracle fit's error on the points it was fitted on, `exterior` the mean "
         f"over the shells {', '.join(f'{s:g}' for s in config['shells_rb'])} R_B, `deep` the "
