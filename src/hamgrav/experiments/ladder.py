@@ -114,8 +114,8 @@ class DeepLadderConfig(DeepCampaignConfig):
     )
     oracle_harmonic: tuple[float, ...] = option(
         (0.0, 1e-5, 1e-4, 1e-3),
-        "Harmonic-penalty weights of rung (b)'s network fits (0: none); the data term is half "
-        "the squared relative error over the points.",
+        "Harmonic-penalty weights of the network fits of rungs (b) and (b+e) (0: none); the "
+        "data term is half the squared relative error over the points.",
         at_least=0,
         nonempty=True,
     )
