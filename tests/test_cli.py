@@ -352,6 +352,9 @@ def test_fit_harmonic_cv(arcs_file, tmp_path):
     assert group.exit_code == 2 and "--cv-group must be one of arc, trajectory, altitude" in (
         " ".join(group.output.split())
     )
+    # the options are checked in the order of the help: --model before --cv-group
+    both = runner.invoke(app, [*args, "--model", "sh:auto:1", "--cv-group", "height"])
+    assert both.exit_code == 2 and "'sh:auto' / 'sh:auto:L'" in both.output
 
 
 def test_fit_harmonic_cv_in_folds_of_arcs(arcs_file, tmp_path):

@@ -1059,8 +1059,6 @@ def _fit_options(
     --harmonic and --cv-group; the --kaula value; the hidden layer sizes)."""
     from .fit.selection import GROUPS as CV_GROUPS
 
-    if cv_group is not None and cv_group not in CV_GROUPS:
-        raise InputError(f"--cv-group must be one of {', '.join(CV_GROUPS)}, got {cv_group!r}")
     settings = _model_option(model) | {"cv_group": cv_group}
     term = settings["term"]
     hidden_sizes = tuple(_ints(hidden, "--hidden"))
@@ -1083,6 +1081,8 @@ def _fit_options(
     if workers and scheduler:
         raise InputError("give --workers or --scheduler, not both (a scheduler has its workers)")
     _number(steps, "--steps", 1, integer=True)
+    if cv_group is not None and cv_group not in CV_GROUPS:
+        raise InputError(f"--cv-group must be one of {', '.join(CV_GROUPS)}, got {cv_group!r}")
     if solver is not None:  # a solver by name replaces the configuration's
         settings = {**settings, "solver": solver, "warm_solver": None, "members": 1}
         if solver == "adam":  # the harmonic penalty is an LM objective term

@@ -127,8 +127,16 @@ def test_descents_rung_fits_the_arcs_and_the_descents_points(tmp_path):
         "sh2/oracle-descents",
     }
     assert all(np.isfinite(v["on_points"]) for v in rep["ladder"].values())
+    # (b+e) is fitted on more points than (b): its fit differs
+    on_points = {k: v["on_points"] for k, v in rep["ladder"].items()}
+    assert on_points["network/oracle-descents"] != on_points["network/oracle-arcs"]
     readme = (tmp_path / "README.md").read_text()
     assert readme.count("| (b+e)") == 2 and f"the descents' {points['descents']}" in readme
+
+
+def test_descents_rung_without_descents_is_refused():
+    with pytest.raises(InputError, match="oracle-descents fits the descents' points"):
+        DeepLadderConfig(body="synthetic", descents=0, rungs=("oracle-descents",)).check()
 
 
 def test_oracle_altitudes_above_the_brillouin_sphere_are_refused(tmp_path):

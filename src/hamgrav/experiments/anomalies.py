@@ -55,7 +55,8 @@ PAPER_ANOMALIES = {
     "shape+network": (0.189, 0.181, 0.170, 0.174),
 }
 #: The paper's statements: the network residual's error on every shell (0.17-0.19: "0.18"),
-#: and the best SH option of any degree and regularisation over the network (3.5x; a bound).
+#: and the best SH option of any degree and regularisation over the network (the paper's
+#: 3.5x, checked against a bound of 3x).
 PAPER_STATEMENTS = {"network_every_shell": 0.18, "best_sh_over_network": 3}
 
 

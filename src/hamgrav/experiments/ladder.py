@@ -3,7 +3,7 @@
 The deep-region campaign (:mod:`hamgrav.experiments.deep`) leaves the network at about 0.44
 in the deepest bin where the paper reports 0.29, and the nine descents do not lower it
 reliably. This experiment takes the same campaign, network and evaluation sets and fits the
-network (and SH of one degree, as a control) on five rungs, each one step closer to the real
+network (and SH of one degree, as a control) rung by rung, each one step closer to the real
 problem; the first large jump between rungs names what limits the deep-region error:
 
 - (a) ``oracle-deep``: the learnable term fitted directly to the true perturbing potential
@@ -18,6 +18,10 @@ problem; the first large jump between rungs names what limits the deep-region er
   representation can hold the deep and the exterior field at once (what assimilating
   descents asks of it); with ``oracle_balance`` each set's relative errors weigh alike
   (without, the deep field, tens of times the exterior's, dominates the fit);
+- (b+e) ``oracle-descents`` (run only when asked): the fit of (b) on the arcs' positions and
+  the descents' together (with ``oracle_balance`` each set weighed alike): whether the
+  descents' samples, known exactly, tell the network the deep field without costing the
+  exterior;
 - (c) ``noise-free``: the tracking fit on the arcs with their noise removed (each arc starts
   from its true state);
 - (d) ``tracking``: the real fit (noisy arcs, each started from its first noisy sample), all
@@ -84,10 +88,10 @@ RUNGS = {
     "descents-warm": "(e) (d) warm-refitted with the tracked descents",
     "descents-scratch": "(e) one fit from scratch on the orbits and the descents",
 }
-#: The rungs that fit tracking arcs (the others fit the true field).
 #: The rungs run by default: every rung but (b+e), which asks whether the descents' samples
 #: hold the deep field's information (added after the first committed ladders).
 DEFAULT_RUNGS = tuple(r for r in RUNGS if r != "oracle-descents")
+#: The rungs that fit tracking arcs (the others fit the true field).
 TRACKING_RUNGS = ("noise-free", "tracking", "descents-warm", "descents-scratch")
 #: LM iteration cap of the oracle fits (per member): they start from the same
 #: initialisation as the tracking fit and have no validation stop.
@@ -96,7 +100,7 @@ ORACLE_ITERATIONS = 40
 
 @dataclass(frozen=True)
 class DeepLadderConfig(DeepCampaignConfig):
-    """The deep-region ladder: the deep campaign's arcs, network and sets, five rungs."""
+    """The deep-region ladder: the deep campaign's arcs, network and sets, and the rungs."""
 
     sh_degree: int = option(8, "Degree of the SH control fitted on every rung.", at_least=2)
     oracle_altitudes_m: tuple[float, ...] = option(
@@ -152,6 +156,11 @@ class DeepLadderConfig(DeepCampaignConfig):
         if unknown:
             raise InputError(
                 f"{label('rungs')}: unknown rung(s) {', '.join(unknown)}; known: {', '.join(RUNGS)}"
+            )
+        if "oracle-descents" in self.rungs and not self.descents:
+            raise InputError(
+                f"{label('rungs')}: oracle-descents fits the descents' points, and "
+                f"{label('descents')} is 0: give {label('descents')} >= 1, or leave the rung out"
             )
 
 
