@@ -51,24 +51,30 @@ def test_oracle_fit_of_a_network_lowers_its_error_where_it_is_sampled(synthetic_
     assert np.all(np.isfinite(penalised))
 
 
+#: The tiny campaign of the end-to-end ladder tests (a synthetic body, 6 arcs, 2 descents).
+TINY = dict(
+    body="synthetic",
+    n_mascons=60,
+    orbits=2,
+    arcs_per_orbit=3,
+    window_spin_periods=0.5,
+    radius_rb=(1.3, 1.9),
+    min_radius_rb=1.0,
+    hidden=(4,),
+    descents=2,
+    sh_degree=2,
+    altitude_m=40.0,
+    shells_rb=(1.3,),
+    deep_bins_rb=(0.5, 0.95),
+)
+
+
 def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
     config = DeepLadderConfig(
-        body="synthetic",
-        n_mascons=60,
-        orbits=2,
-        arcs_per_orbit=3,
-        window_spin_periods=0.5,
-        radius_rb=(1.3, 1.9),
-        min_radius_rb=1.0,
-        hidden=(4,),
+        **TINY,
         lm_iterations=2,
-        descents=2,
-        sh_degree=2,
         oracle_altitudes_m=(20.0, 60.0),
-        altitude_m=40.0,
         oracle_harmonic=(0.0, 1e-4),
-        shells_rb=(1.3,),
-        deep_bins_rb=(0.5, 0.95),
         adam_rungs=("tracking",),
         oracle_balance=True,
         adam_steps=3,
@@ -98,21 +104,9 @@ def test_the_ladder_runs_every_rung_and_writes_its_tables(tmp_path):
 def test_descents_rung_fits_the_arcs_and_the_descents_points(tmp_path):
     # (b+e): rung (b) with the descents' true positions added, each set weighed alike
     config = DeepLadderConfig(
-        body="synthetic",
-        n_mascons=60,
-        orbits=2,
-        arcs_per_orbit=3,
-        window_spin_periods=0.5,
-        radius_rb=(1.3, 1.9),
-        min_radius_rb=1.0,
-        hidden=(4,),
-        descents=2,
-        sh_degree=2,
+        **TINY,
         oracle_altitudes_m=(20.0,),
-        altitude_m=40.0,
         oracle_harmonic=(1e-4,),
-        shells_rb=(1.3,),
-        deep_bins_rb=(0.5, 0.95),
         rungs=("oracle-arcs", "oracle-descents"),
         oracle_balance=True,
     )

@@ -54,10 +54,6 @@ def swarm_figure(result: dict, artefacts: dict) -> Figure:
     return fig
 
 
-def _count(values: list[float], test) -> str:
-    return count_draws(test(v) for v in values)
-
-
 def _percent(fraction: float) -> str:
     return f"{100 * fraction:g} %"
 
@@ -205,8 +201,8 @@ def swarm_readme(report: dict, paper_network: str, paper: dict) -> list[str]:
                     f"- {kind} network: kept {format_range(summarise(kept), '{:.3f}')}, best "
                     f"scanned {format_range(summarise(best), '{:.3f}')}"
                     + (
-                        f"; < 0.5 in {_count(kept, lambda v: v < 0.5)} kept and "
-                        f"{_count(best, lambda v: v < 0.5)} best"
+                        f"; < 0.5 in {count_draws(v < 0.5 for v in kept)} kept and "
+                        f"{count_draws(v < 0.5 for v in best)} best"
                         if kind == "gravity-only"
                         else ""
                     )
