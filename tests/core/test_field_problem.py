@@ -132,5 +132,13 @@ def test_groups_weigh_their_relative_errors_alike():
         for g in (slice(0, 40), slice(40, 50))
     ]
     assert problem.cost(theta) == pytest.approx(0.5 * sum(rel), rel=1e-12)
+    weighted = FieldProblem(
+        NET, points, values, groups=np.repeat([0, 1], [40, 10]), group_weights={1: 0.25}
+    )
+    assert weighted.cost(theta) == pytest.approx(0.5 * (rel[0] + 0.25 * rel[1]), rel=1e-12)
     with pytest.raises(ValueError, match="one label per point"):
         FieldProblem(NET, points, values, groups=np.zeros(3))
+    with pytest.raises(ValueError, match="no point"):
+        FieldProblem(NET, points, values, groups=np.zeros(50, int), group_weights={1: 0.5})
+    with pytest.raises(ValueError, match=">= 0"):
+        FieldProblem(NET, points, values, groups=np.zeros(50, int), group_weights={0: -1.0})

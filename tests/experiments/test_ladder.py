@@ -128,6 +128,34 @@ def test_descents_rung_fits_the_arcs_and_the_descents_points(tmp_path):
     assert readme.count("| (b+e)") == 2 and f"the descents' {points['descents']}" in readme
 
 
+def test_the_deep_share_and_the_iteration_cap_reach_the_oracle_fits(tmp_path):
+    # the same (b+e) fit with the descents' share of the cost at 0.1 instead of 0.5, and a
+    # cap of 3 LM iterations a member
+    on_points = {}
+    for share in (0.5, 0.1):
+        config = DeepLadderConfig(
+            **TINY,
+            oracle_altitudes_m=(20.0,),
+            oracle_harmonic=(1e-4,),
+            rungs=("oracle-descents",),
+            oracle_balance=True,
+            oracle_deep_share=share,
+            oracle_iterations=3,
+        )
+        out = tmp_path / str(share)
+        report, _ = run_experiment("deep-ladder", config, seed=2, output=out, verbose=False)
+        rep = report["repetitions"][0]
+        members = rep["fits"]["network/oracle-descents"]["members"]
+        assert all(m["iterations"] <= 3 for m in members)
+        on_points[share] = rep["ladder"]["network/oracle-descents"]["on_points"]
+    assert on_points[0.1] != on_points[0.5]
+
+
+def test_a_deep_share_without_balance_is_refused():
+    with pytest.raises(InputError, match="oracle_deep_share weighs the sets of a balanced fit"):
+        DeepLadderConfig(body="synthetic", oracle_deep_share=0.2).check()
+
+
 def test_descents_rung_without_descents_is_refused():
     with pytest.raises(InputError, match="oracle-descents fits the descents' points"):
         DeepLadderConfig(body="synthetic", descents=0, rungs=("oracle-descents",)).check()

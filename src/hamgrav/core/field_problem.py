@@ -41,6 +41,9 @@ class FieldProblem(LeastSquaresProblem):
         groups: optional (k,) labels: the default scales are then each group's own (rms and
             count over its points), so that every group's relative errors weigh the same in
             J however large its field and however many its points.
+        group_weights: optional {label: w >= 0}: group ``label``'s share of J is multiplied
+            by w (1 for a label not given), e.g. to weigh one set's relative errors below
+            another's.
         regulariser: optional :class:`~hamgrav.core.problem.Regulariser` of the learnable
             parameters (e.g. the harmonic penalty), added to the training objective.
     """
@@ -55,6 +58,7 @@ class FieldProblem(LeastSquaresProblem):
         scale: float | None = None,
         acceleration_scale: float | None = None,
         groups: np.ndarray | None = None,
+        group_weights: dict | None = None,
         regulariser: Regulariser | None = None,
     ):
         if model.learnable is None or model.n_learn == 0:
@@ -80,6 +84,8 @@ class FieldProblem(LeastSquaresProblem):
             s_a = _scales(accelerations, labels, acceleration_scale, "accelerations")
             columns += [s_a] * 3
         scales = np.column_stack(columns)
+        if group_weights:
+            scales *= _group_factors(labels, group_weights)[:, None]
         targets.flags.writeable = False
         points.flags.writeable = False
         self.model = model
@@ -134,6 +140,20 @@ class FieldProblem(LeastSquaresProblem):
             h.update(json.dumps(self.model.describe(), sort_keys=True, default=repr).encode())
             self._fingerprints[key] = h.hexdigest()
         return self._fingerprints[key]
+
+
+def _group_factors(labels: np.ndarray, group_weights: dict) -> np.ndarray:
+    """Per point (k,): sqrt of its group's weight (1 for a group not weighted); checked."""
+    known = set(np.unique(labels).tolist())
+    unknown = sorted(set(group_weights) - known, key=str)
+    if unknown:
+        raise ValueError(f"group_weights names groups with no point: {unknown}")
+    factors = np.ones(len(labels))
+    for group, weight in group_weights.items():
+        if not (np.isfinite(weight) and weight >= 0):
+            raise ValueError(f"the weight of group {group!r} must be finite and >= 0, got {weight}")
+        factors[labels == group] = np.sqrt(float(weight))
+    return factors
 
 
 def _scales(target: np.ndarray, labels: np.ndarray, scale: float | None, what: str):

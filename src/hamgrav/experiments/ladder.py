@@ -135,6 +135,13 @@ class DeepLadderConfig(DeepCampaignConfig):
         "Weigh the two sets of rung (a+b), and of rung (b+e), alike (each set's relative "
         "errors); off: one normalisation over all points, where the deep field dominates.",
     )
+    oracle_deep_share: float = option(
+        0.5,
+        "With oracle_balance: the share of the cost that rung (a+b)'s deep points and rung "
+        "(b+e)'s descent points carry, the arcs' points the rest (0.5: each set alike).",
+        above=0,
+        at_most=0.5,
+    )
     adam_rungs: tuple[str, ...] = option(
         (),
         "Tracking rungs also fitted by the paper's protocol (the `network` preset: one "
@@ -143,6 +150,12 @@ class DeepLadderConfig(DeepCampaignConfig):
     )
 
     adam_steps: int = option(1500, "Adam steps of the paper's protocol (adam_rungs).", at_least=1)
+    oracle_iterations: int = option(
+        ORACLE_ITERATIONS,
+        "LM iterations of each ensemble member in the oracle rungs' fits (the cap; they stop "
+        "earlier only on a relative cost change below the solver's tolerance).",
+        at_least=1,
+    )
 
     def check(self) -> None:
         super().check()
@@ -157,6 +170,11 @@ class DeepLadderConfig(DeepCampaignConfig):
             raise InputError(
                 f"{label('rungs')}: unknown rung(s) {', '.join(unknown)}; known: {', '.join(RUNGS)}"
             )
+        if self.oracle_deep_share != 0.5 and not self.oracle_balance:
+            raise InputError(
+                f"{label('oracle_deep_share')} weighs the sets of a balanced fit: give "
+                f"{label('oracle_balance')} too, or leave the share at 0.5"
+            )
         if "oracle-descents" in self.rungs and not self.descents:
             raise InputError(
                 f"{label('rungs')}: oracle-descents fits the descents' points, and "
@@ -165,15 +183,23 @@ class DeepLadderConfig(DeepCampaignConfig):
 
 
 def oracle_fit(
-    estimator: GravityEstimator, arcs, points, truth, *, harmonic: float = 0.0, groups=None
+    estimator: GravityEstimator,
+    arcs,
+    points,
+    truth,
+    *,
+    harmonic: float = 0.0,
+    groups=None,
+    group_weights=None,
+    iterations: int = ORACLE_ITERATIONS,
 ):
     """(model, params, info): the estimator's learnable term (each ensemble member on its own,
     from the estimator's initialisation) fitted by LM to the truth's perturbing potential and
     its acceleration, minus the model's known part, at ``points`` (k, 3), canonical (half the
     squared relative error of each in the cost); ``harmonic`` > 0 adds the
     network's harmonic penalty at that weight (collocation points as the tracking fit's);
-    ``groups`` (k,) labels weigh each group's relative errors alike (see
-    :class:`~hamgrav.core.field_problem.FieldProblem`).
+    ``groups`` (k,) labels weigh each group's relative errors alike, or by
+    ``group_weights`` {label: weight} (see :class:`~hamgrav.core.field_problem.FieldProblem`).
     ``info``: ``on_points``, the ensemble's relative potential error on the fitted points, and each
     member's solver summary."""
     solver = estimator.make_solver()
@@ -190,8 +216,16 @@ def oracle_fit(
     penalty = None
     if harmonic:
         penalty = HarmonicPenalty(member, estimator.collocation_points(arcs), harmonic)
-    problem = FieldProblem(member, points, target, target_acc, groups=groups, regulariser=penalty)
-    solver = replace(solver, max_iter=ORACLE_ITERATIONS, patience=None)
+    problem = FieldProblem(
+        member,
+        points,
+        target,
+        target_acc,
+        groups=groups,
+        group_weights=group_weights,
+        regulariser=penalty,
+    )
+    solver = replace(solver, max_iter=iterations, patience=None)
     blocks = model.learnable.split_members(estimator.initial_params(model, arcs))
     results = [solver.solve(problem, block) for block in blocks]
     params = np.concatenate([r.params for r in results])
@@ -291,9 +325,11 @@ class DeepLadderExperiment(Experiment):
             "oracle-descents": np.concatenate([arc_points, descent_points]),
         }
         groups_of = {
-            "oracle-both": np.repeat([0, 1], [len(deep_points), len(arc_points)]),
+            "oracle-both": np.repeat([1, 0], [len(deep_points), len(arc_points)]),
             "oracle-descents": np.repeat([0, 1], [len(arc_points), len(descent_points)]),
         }
+        # label 1: the deep or descent points, 0: the arcs' (weights 1, 1 at a share of 0.5)
+        share_weights = {0: 2 * (1 - config.oracle_deep_share), 1: 2 * config.oracle_deep_share}
         for row, settings in rows.items():
             wanted = set(config.adam_rungs if row == "network-adam" else config.rungs)
             settings = committed_holdout(settings)
@@ -313,7 +349,14 @@ class DeepLadderExperiment(Experiment):
                     name = f"{rung}:{weight:g}" if len(weights) > 1 else rung
                     groups = groups_of.get(rung) if config.oracle_balance else None
                     fit = oracle_fit(
-                        estimator(), arcs, points, truth, harmonic=weight, groups=groups
+                        estimator(),
+                        arcs,
+                        points,
+                        truth,
+                        harmonic=weight,
+                        groups=groups,
+                        group_weights=share_weights if groups is not None else None,
+                        iterations=config.oracle_iterations,
                     )
                     score(row, name, *fit)
             if "noise-free" in wanted:
