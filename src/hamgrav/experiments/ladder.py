@@ -16,10 +16,12 @@ problem; the first large jump between rungs names what limits the deep-region er
   can tell of them;
 - (a+b) ``oracle-both``: the fit on the points of (a) and (b) together: whether the
   representation can hold the deep and the exterior field at once (what assimilating
-  descents asks of it); with ``oracle_balance`` each set's relative errors weigh alike
-  (without, the deep field, tens of times the exterior's, dominates the fit);
+  descents asks of it); with ``oracle_balance`` each set's relative errors weigh alike, or
+  as ``oracle_deep_share`` says (without, the deep field, tens of times the exterior's,
+  dominates the fit);
 - (b+e) ``oracle-descents`` (run only when asked): the fit of (b) on the arcs' positions and
-  the descents' together (with ``oracle_balance`` each set weighed alike): whether the
+  the descents' together (with ``oracle_balance`` each set weighed alike, or by
+  ``oracle_deep_share``): whether the
   descents' samples, known exactly, tell the network the deep field without costing the
   exterior;
 - (c) ``noise-free``: the tracking fit on the arcs with their noise removed (each arc starts
