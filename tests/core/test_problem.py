@@ -187,6 +187,41 @@ def test_whitening_applies_to_every_sample(arcs):
         ArcProblem(model, arcs, whitening=np.ones(6))
 
 
+def test_arc_weights_scale_each_arcs_rows(arcs):
+    """With arc weights w, arc k's residuals and rows of A are sqrt(w_k) times the
+    unweighted (after the whitening), its cost w_k times; the weights enter the fingerprint,
+    so sums formed under other weights are not reused; bad weights are refused."""
+    sh = SphericalHarmonics(3, 0.7)
+    model = Model((PointMass(),), sh)
+    w = np.diag([3.0, 1.0, 2.0, 50.0, 40.0, 60.0])
+    weights = np.array([1.0, 0.25, 4.0, 0.0, 2.0])
+    plain = ArcProblem(model, arcs, whitening=w)
+    weighted = ArcProblem(model, arcs, whitening=w, arc_weights=weights)
+    theta = np.full(sh.n_params, 1e-3)
+    r, a = plain.design(theta)
+    r_w, a_w = weighted.design(theta)
+    rows = np.repeat(np.sqrt(weights), arcs.samples_per_arc * 6)
+    np.testing.assert_allclose(r_w, rows * r, rtol=1e-13, atol=0)
+    np.testing.assert_allclose(a_w, rows[:, None] * a, rtol=1e-13, atol=0)
+    np.testing.assert_allclose(
+        weighted.arc_costs(theta), weights * plain.arc_costs(theta), rtol=1e-13
+    )
+    picked = [4, 1, 2]
+    assert weighted.cost(theta, picked) == pytest.approx(
+        float(weights[picked] @ plain.arc_costs(theta, picked)), rel=1e-12
+    )
+    cost, atr, ata = weighted.normal_equations(theta, chunk=2)
+    np.testing.assert_allclose(atr, a_w.T @ r_w, rtol=1e-12, atol=1e-20)
+    np.testing.assert_allclose(ata, a_w.T @ a_w, rtol=1e-12, atol=1e-20)
+    # arcs 0 and 2 keep weight 1 under the other weights: only their fingerprints agree
+    other = ArcProblem(model, arcs, whitening=w, arc_weights=np.array([1, 1, 4.0, 1, 1]))
+    assert other.fingerprint([0, 2]) == weighted.fingerprint([0, 2])
+    assert other.fingerprint([0, 1]) != weighted.fingerprint([0, 1])
+    for bad in (np.ones(4), np.array([1.0, -1, 1, 1, 1]), np.array([1.0, np.nan, 1, 1, 1])):
+        with pytest.raises(ValueError, match="arc_weights must be 5 finite numbers"):
+            ArcProblem(model, arcs, arc_weights=bad)
+
+
 def test_compiled_once_per_structure():
     m1 = Model((PointMass(),), SphericalHarmonics(3, 0.7))
     m2 = Model((PointMass(),), SphericalHarmonics(3, 0.7))

@@ -37,6 +37,7 @@ BEFORE_THE_OPTION = {
     "cv_group": "arc",
     "oracle_deep_share": 0.5,
     "oracle_iterations": 40,
+    "descent_share": 0.0,
 }
 
 

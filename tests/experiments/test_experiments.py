@@ -224,6 +224,7 @@ def test_descent_with_both_blocks_tiny(tmp_path):
         (["deep", "--stages", "19"], "--stages must lie between 1 and --orbits (18)"),
         (["deep", "--descent-span", "all"], "--descent-span must be one of end, whole"),
         (["deep", "--descent-iterations", "-1"], "--descent-iterations must be at least 0, got -1"),
+        (["deep", "--descent-share", "1"], "--descent-share must be 0 \\(unweighted\\) or lie in"),
         (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
         (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
         (["descent", "--altitude-m", "-5"], "--altitude-m must be above 0, got -5.0"),
@@ -423,7 +424,8 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     args = [
         *TINY_DEEP, "--sh-degrees", "2", "--map-degrees", "2", "--map-points", "11",
         "--descent-degrees", "2", "--descent-span", "whole", "--descent-iterations", "3",
-        "--random-orders", "0", "--no-d-optimal", "--no-warm-gate", "-o", str(out),
+        "--descent-share", "0.2", "--random-orders", "0", "--no-d-optimal", "--no-warm-gate",
+        "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
@@ -443,7 +445,14 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     # no descent is held out: the refits are judged on their training arcs
     assert all(f["checked_on"] == "training arcs" for f in fits.values())
     assert set(rep["deep_bins_after_descents"]) == {"sh2", "network-best"}
+    # the descents weigh as a set at the share asked for, the orbital arcs 1: the refits'
+    # records carry the weight, and their solver records the weights they ran with
+    for f in fits.values():
+        assert 0 < f["descent_weight"] < 1
+        assert f["arc_weights"]["max"] == 1.0 and f["arc_weights"]["n_not_one"] == 2
+        assert f["arc_weights"]["min"] == pytest.approx(f["descent_weight"], rel=1e-3)
     readme = (out / "README.md").read_text()
+    assert "the descent arcs weigh as a set 0.2 of the cost" in readme
     assert "40 samples spread evenly from release to contact" in readme
     assert "the network runs 3 LM iterations per member" in readme
 

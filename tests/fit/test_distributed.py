@@ -73,6 +73,24 @@ def test_sums_over_chunks_equal_the_in_process_sums(client, small_arcs, syntheti
     assert set(mine.values()) == {"forward"} and len(mine) == 3
 
 
+def test_weighted_sums_over_chunks_equal_the_in_process_sums(client, small_arcs, synthetic_truth):
+    """Each chunk carries its arcs' weights: the sums equal the in-process weighted sums."""
+    est = _network(synthetic_truth.body)
+    model, _ = est.build_model(small_arcs)
+    theta = est.initial_params(model, small_arcs)
+    weights = np.linspace(0.2, 5.0, small_arcs.n_arcs)
+    local = ArcProblem(model, small_arcs, arc_weights=weights)
+    remote = DistributedArcProblem(model, small_arcs, client=client, chunks=3, arc_weights=weights)
+    picked = np.array([7, 1, 2, 3, 8, 5, 0])
+    c0, g0, h0 = local.normal_equations(theta, picked)
+    c1, g1, h1 = remote.normal_equations(theta, picked)
+    assert c1 == pytest.approx(c0, rel=1e-12)
+    assert c0 != pytest.approx(ArcProblem(model, small_arcs).cost(theta, picked), rel=1e-3)
+    np.testing.assert_allclose(g1, g0, rtol=1e-10, atol=1e-12 * np.abs(g0).max())
+    np.testing.assert_allclose(h1, h0, rtol=1e-10, atol=1e-12 * np.abs(h0).max())
+    np.testing.assert_allclose(remote.gradient(theta, picked)[1], g0, rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.filterwarnings("ignore:the fit looks overfit")
 @pytest.mark.parametrize("term", ["network", "sh"])
 def test_a_distributed_fit_equals_the_in_process_fit(client, small_arcs, synthetic_truth, term):

@@ -90,6 +90,49 @@ def test_weighted_fit_whitens_the_residuals(small_arcs, synthetic_truth):
     assert plain.fitted_.solver["weighted"] is False
 
 
+def test_a_fit_with_arc_weights_minimises_the_weighted_cost(small_arcs, synthetic_truth):
+    """arc_weights reach the fit's problem: its costs are the weighted ones, the fit differs
+    from the unweighted one, the record says so, and the formal covariance refuses it."""
+    from hamgrav.fit.covariance import normal_system
+
+    weights = np.where(np.arange(small_arcs.n_arcs) < 3, 0.05, 1.0)
+    est = GravityEstimator("sh", degree=2, validation_fraction=0.0, body=synthetic_truth.body)
+    est.fit(small_arcs, arc_weights=weights)
+    problem = ArcProblem(est.model_, small_arcs, arc_weights=weights)
+    assert est.result_.initial_cost == pytest.approx(problem.cost(np.zeros(5)), rel=1e-12)
+    assert est.result_.cost == pytest.approx(problem.cost(est.params_), rel=1e-12)
+    assert est.fitted_.solver["arc_weights"] == {"min": 0.05, "max": 1.0, "n_not_one": 3}
+    plain = GravityEstimator(
+        "sh", degree=2, validation_fraction=0.0, body=synthetic_truth.body
+    ).fit(small_arcs)
+    assert "arc_weights" not in plain.fitted_.solver
+    assert np.abs(est.params_ - plain.params_).max() > 1e-3 * np.abs(plain.params_).max()
+    # the weighted fit's cost is the lower of the two on the weighted problem
+    assert problem.cost(est.params_) <= problem.cost(plain.params_)
+    with pytest.raises(InputError, match="formal covariance is not implemented"):
+        normal_system(est.fitted_, small_arcs)
+
+
+@pytest.mark.parametrize(
+    "weights, message",
+    [
+        (np.ones(3), "one weight per arc"),
+        (-np.ones(9), "finite and >= 0"),
+        (np.zeros(9), "not all zero"),
+    ],
+)
+def test_bad_arc_weights_are_refused(small_arcs, synthetic_truth, weights, message):
+    est = GravityEstimator("sh", degree=2, body=synthetic_truth.body)
+    with pytest.raises(InputError, match=message):
+        est.fit(small_arcs, arc_weights=weights)
+
+
+def test_arc_weights_are_refused_with_hyperparameters_to_choose(small_arcs, synthetic_truth):
+    est = GravityEstimator("sh", degree=2, kaula="cv", body=synthetic_truth.body)
+    with pytest.raises(InputError, match="arc weights and hyperparameters to choose"):
+        est.fit(small_arcs, arc_weights=np.ones(small_arcs.n_arcs))
+
+
 def test_shape_prior_is_centred_on_its_own_centre_of_mass(small_arcs, synthetic_truth):
     est = GravityEstimator(
         "sh", degree=2, prior="shape", prior_mascons=30, body=synthetic_truth.body

@@ -13,7 +13,7 @@ from hamgrav.core.terms import (
     SphericalHarmonics,
     sh_coefficients_of_mascons,
 )
-from hamgrav.errors import PropagationError
+from hamgrav.errors import InputError, PropagationError
 from hamgrav.fit.adam import Adam
 from hamgrav.fit.base import Outcome
 from hamgrav.fit.continual import ContinualFit, fit_continual
@@ -307,6 +307,23 @@ def test_continual_stages_never_train_on_validation_arcs(small_arcs, synthetic_t
         assert np.array_equal(record.arcs[validation], record.validation)
         assert not set(record.arcs[train]) & set(record.validation)
         assert np.array_equal(arcs.times, small_arcs.times[record.arcs])
+
+
+def test_a_stage_weighs_its_arcs_as_given(small_arcs, synthetic_truth):
+    """``add(new, arc_weights=w)`` (one weight per arc of the run) fits the stage's arcs at
+    their weights: the stage's cost is the weighted cost of its arcs; a weight per arc of
+    the stage alone is refused."""
+    est = GravityEstimator("sh", degree=2, validation_fraction=0.0, body=synthetic_truth.body)
+    run = ContinualFit(est, small_arcs)
+    run.add(np.arange(0, 5))
+    weights = np.where(np.arange(small_arcs.n_arcs) >= 5, 0.1, 1.0)
+    with pytest.raises(InputError, match="one weight per arc of the run"):
+        run.add(np.arange(5, 9), arc_weights=weights[5:])
+    record = run.add(np.arange(5, 9), arc_weights=weights)
+    assert np.array_equal(record.arcs, np.arange(9))  # the refused call changed nothing
+    problem = ArcProblem(est.model_, small_arcs, arc_weights=weights)
+    assert record.result.cost == pytest.approx(problem.cost(record.result.params), rel=1e-12)
+    assert est.fitted_.solver["arc_weights"]["n_not_one"] == 4
 
 
 def test_a_stage_without_validation_trains_every_new_arc_but_no_earlier_hold_out(

@@ -11,8 +11,10 @@ are not estimated are data (``trajectory_values``). Residuals r = y - x(t; y_0, 
 canonical states, cost J = r.r / 2, design matrix A = dr/dtheta = -Phi, gradient A^T r,
 normal matrix A^T A. With a ``whitening`` W (6, 6), every sample's residual and its rows of
 A are whitened: r -> W r, A -> W A (the weighted fit, W from
-:func:`hamgrav.fit.estimator.noise_whitening`); everything above then holds for the whitened
-r and A.
+:func:`hamgrav.fit.estimator.noise_whitening`); with ``arc_weights`` w (one per arc), arc k's
+rows are multiplied by sqrt(w_k), so that its cost counts w_k times (a set of arcs
+deweighted as a whole, as a navigation filter deweights a data type: the same as the arc's
+noise scaled by 1 / sqrt(w_k)); everything above then holds for these r and A.
 
 Solvers use an :class:`ArcProblem` only through ``cost``, ``objective``, ``gradient``,
 ``normal_equations``, ``regularise``, ``prior_diagonal``, ``with_prior`` and ``arc_normals``
@@ -249,6 +251,9 @@ class ArcProblem(LeastSquaresProblem):
             covariance S whitens the residuals, see
             :func:`hamgrav.fit.estimator.noise_whitening`); None = the paper's unweighted
             canonical residuals.
+        arc_weights: optional (n_arcs,) finite weights >= 0, one per arc: arc k's residual
+            and its sensitivities are multiplied by sqrt(w_k) (after the whitening), so that
+            its cost counts w_k times; None = every arc 1.
         tol: integrator tolerance of propagations of states alone (costs, residuals).
         sensitivity_tol: integrator tolerance of propagations that carry the sensitivities
             (:meth:`design`, the normal equations).
@@ -269,6 +274,7 @@ class ArcProblem(LeastSquaresProblem):
         estimate_trajectory_params: bool = False,
         trajectory_values: np.ndarray | None = None,
         whitening: np.ndarray | None = None,
+        arc_weights: np.ndarray | None = None,
         tol: float = DEFAULT_FIT_TOLERANCE,
         sensitivity_tol: float = DEFAULT_SENSITIVITY_TOLERANCE,
         threads: int | None = None,
@@ -310,6 +316,17 @@ class ArcProblem(LeastSquaresProblem):
                 raise ValueError(f"whitening must be a finite (6, 6) matrix, got {whitening!r}")
             whitening.flags.writeable = False
         self.whitening = whitening
+        if arc_weights is not None:
+            arc_weights = np.array(arc_weights, dtype=float)
+            if arc_weights.shape != (arcs.n_arcs,) or not np.all(
+                np.isfinite(arc_weights) & (arc_weights >= 0)
+            ):
+                raise ValueError(
+                    f"arc_weights must be {arcs.n_arcs} finite numbers >= 0 (one per arc), got "
+                    f"shape {arc_weights.shape}"
+                )
+            arc_weights.flags.writeable = False
+        self.arc_weights = arc_weights
         self.threads = threads
         self.max_steps = int(max_steps)
         self._fingerprints: dict[bytes, str] = {}
@@ -392,40 +409,53 @@ class ArcProblem(LeastSquaresProblem):
         return Prediction(run.states, jac)
 
     # ---------------------------------------------------------------- least squares
-    def _whiten(self, r: np.ndarray) -> np.ndarray:
-        """W r on the last axis (r itself without a whitening)."""
-        return r if self.whitening is None else r @ self.whitening.T
+    def _root_weights(self, idx: np.ndarray) -> np.ndarray | None:
+        """sqrt(w) of the arcs ``idx`` as (k, 1, 1); None without arc weights."""
+        if self.arc_weights is None:
+            return None
+        return np.sqrt(self.arc_weights[idx])[:, None, None]
+
+    def _whiten(self, r: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """sqrt(w) W r of the arcs ``idx``, W on the last axis (each factor 1 when not
+        given)."""
+        if self.whitening is not None:
+            r = r @ self.whitening.T
+        root = self._root_weights(idx)
+        return r if root is None else r * root
 
     def residuals(self, theta, arc_indices=None) -> np.ndarray:
-        """r = y - x (whitened when a whitening was given), shape (n_arcs, m, 6)."""
+        """r = y - x (whitened and weighted when given), shape (n_arcs, m, 6)."""
         idx = self._indices(arc_indices)
-        return self._whiten(self.arcs.states[idx] - self.predict(theta, idx).states)
+        return self._whiten(self.arcs.states[idx] - self.predict(theta, idx).states, idx)
 
     def arc_costs(self, theta, arc_indices=None) -> np.ndarray:
         """r.r / 2 of each selected arc in the order given, shape (n_arcs,): canonical units,
-        dimensionless when whitened (:meth:`cost` is their sum)."""
+        dimensionless when whitened, times the arc's weight (:meth:`cost` is their sum)."""
         r = self.residuals(theta, arc_indices)
         return 0.5 * np.sum(r * r, axis=(1, 2))
 
     def design(self, theta, arc_indices=None):
         """(r, A) with r (N,) and A (N, n_params) for N = arcs x samples x 6 (materialised;
-        whitened when a whitening was given)."""
+        whitened and weighted when given)."""
         idx = self._indices(arc_indices)
         pred = self.predict(theta, idx, sensitivities=True)
-        r = self._whiten(self.arcs.states[idx] - pred.states)
+        r = self._whiten(self.arcs.states[idx] - pred.states, idx)
         # in place: the prediction's arrays are this call's own, and A is the largest array
         # of a fit (chunk x samples x 6 x n_params)
         a = np.negative(pred.jacobian, out=pred.jacobian)
         if self.whitening is not None:
             for block in a:  # W A arc by arc, in place: no second array of A's size
                 block[...] = np.matmul(self.whitening, block)
+        root = self._root_weights(idx)
+        if root is not None:
+            a *= root[..., None]
         return r.reshape(-1), a.reshape(-1, self.n_params)
 
     def fingerprint(self, arc_indices=None) -> str:
         """SHA-256 (hex) of what the arcs' sums at given parameters depend on: the selected
-        arcs' data (:meth:`Arcs.digest`), the model's description, the whitening, the
-        parameter layout and the integrator settings. Kept per selection: a fit asks for it
-        once per training set."""
+        arcs' data (:meth:`Arcs.digest`), the model's description, the whitening, their arc
+        weights, the parameter layout and the integrator settings. Kept per selection: a
+        fit asks for it once per training set."""
         idx = np.asarray(self._indices(arc_indices), dtype=np.intp)
         key = idx.tobytes()
         if key not in self._fingerprints:
@@ -439,7 +469,8 @@ class ArcProblem(LeastSquaresProblem):
                 self.max_steps,
             )
             h.update(repr(layout).encode())
-            for array in (self.whitening, self.trajectory_values):
+            weights = None if self.arc_weights is None else self.arc_weights[idx]
+            for array in (self.whitening, self.trajectory_values, weights):
                 h.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
             self._fingerprints[key] = h.hexdigest()
         return self._fingerprints[key]
@@ -459,6 +490,7 @@ class ArcProblem(LeastSquaresProblem):
             self._runtime_params(theta, idx),
             n_shared=self.model.n_learn,
             whitening=self.whitening,
+            arc_weights=None if self.arc_weights is None else self.arc_weights[idx],
             tol=self.tol,
             threads=self.threads,
             max_steps=self.max_steps,

@@ -194,8 +194,9 @@ class AdjointGradient:
     """Result of :func:`adjoint_gradient`.
 
     Attributes:
-        costs: (n,) each arc's cost 0.5 |W (y - x)|^2 (canonical, or dimensionless when
-            whitened); NaN for an arc whose forward or costate pass failed.
+        costs: (n,) each arc's cost 0.5 w |W (y - x)|^2 (canonical, or dimensionless when
+            whitened; w the arc's weight, 1 without weights); NaN for an arc whose forward
+            or costate pass failed.
         gradient: (n_system_params,) d (sum of the costs) / d runtime parameters, summed over
             the arcs that propagated (per-trajectory parameters: their sum too, see
             ``per_arc``).
@@ -297,14 +298,16 @@ def adjoint_gradient(
     *,
     n_shared: int,
     whitening: np.ndarray | None = None,
+    arc_weights: np.ndarray | None = None,
     tol: float = DEFAULT_FIT_TOLERANCE,
     adjoint_tol: float | None = None,
     threads: int | None = None,
     max_steps: int | None = None,
 ) -> AdjointGradient:
-    """The cost 0.5 sum |W (y - x)|^2 of arcs started at ``states0`` (n, 6) on the grids
-    ``times`` (n, m) against ``observed`` states y (n, m, 6), and its gradient with respect to
-    the runtime parameters (n_system_params, n), by the adjoint method.
+    """The cost 0.5 sum_k w_k |W (y - x)|^2 of arcs started at ``states0`` (n, 6) on the
+    grids ``times`` (n, m) against ``observed`` states y (n, m, 6), and its gradient with
+    respect to the runtime parameters (n_system_params, n), by the adjoint method; w_k are the
+    ``arc_weights`` (n,) (1 when not given), W the ``whitening`` (identity when not given).
 
     The states come forward at ``tol`` (:func:`propagate_batch`), giving the costs and the
     costate's jumps dJ/dx_k at the samples. The costate lam' = -(df/dx)^T lam is linear, so
@@ -332,9 +335,13 @@ def adjoint_gradient(
     )
     residual = observed - forward.states
     whitened = residual if whitening is None else residual @ whitening.T
+    if arc_weights is not None:
+        whitened = whitened * np.sqrt(np.asarray(arc_weights, dtype=float))[:, None, None]
     costs = 0.5 * np.sum(whitened * whitened, axis=(1, 2))
-    # dJ/dx_k = -W^T W (y_k - x_k), as rows
+    # dJ/dx_k = -w W^T W (y_k - x_k), as rows
     kicks = -(whitened if whitening is None else whitened @ whitening)
+    if arc_weights is not None:
+        kicks *= np.sqrt(np.asarray(arc_weights, dtype=float))[:, None, None]
     n_par = model.n_system_params
     per_arc = np.zeros((n, n_par - n_shared))
     ok = forward.ok.copy()

@@ -27,7 +27,8 @@ The later parts are further stage sequences fed to the same continual fit
   ``descent_degrees`` are warm-refitted on the 126 + 9 arcs from their stage-6 parameters
   (by default the network holds out its usual share of the arriving arcs for validation, here
   one descent; with ``descent_iterations`` every descent is trained, without a validation
-  stop) and the deep bins are evaluated again.
+  stop; with ``descent_share`` the descent arcs weigh as a set at that share of the cost,
+  :func:`hamgrav.fit.weights.share_weights`) and the deep bins are evaluated again.
 - Arrival orders (``random_orders``, default 5; 0: off): the same orbits under seeded random
   permutations, split into the same stage sizes, the network alone warm-refitted stage by
   stage; the mean exterior error after each stage.
@@ -64,6 +65,7 @@ from ..errors import InputError
 from ..fit.continual import ContinualFit
 from ..fit.design import d_optimal_campaign, orbit_plans
 from ..fit.estimator import NETWORK_WARM_SOLVER
+from ..fit.weights import share_weights
 from ..report.deep import (
     bins_figure,
     deep_readme,
@@ -247,6 +249,13 @@ class DeepExperimentConfig(DeepCampaignConfig):
         "SH degrees warm-refitted on the descents with the network (among sh_degrees).",
         at_least=2,
     )
+    descent_share: float = option(
+        0.0,
+        "0: every arc of the descent refits weighs 1; s in (0, 1): the descent arcs, as a "
+        "set, are weighed at the share s of the refits' cost, measured by what no "
+        "correction leaves on them and on the orbital training arcs "
+        "(hamgrav.fit.weights.share_weights; the orbital arcs keep weight 1).",
+    )
     random_orders: int = option(
         5,
         "Random arrival orders of the same orbits, network only, seeded by the seed (0: off).",
@@ -266,6 +275,11 @@ class DeepExperimentConfig(DeepCampaignConfig):
         if self.descents and set(self.descent_degrees) - set(self.sh_degrees):
             raise InputError(
                 f"{label('descent_degrees')} must be among {label('sh_degrees')} ({degrees})"
+            )
+        if not (self.descent_share == 0 or 0 < self.descent_share < 1):
+            raise InputError(
+                f"{label('descent_share')} must be 0 (unweighted) or lie in (0, 1), e.g. 0.2; "
+                f"got {self.descent_share}"
             )
 
 
@@ -316,6 +330,20 @@ def evaluate(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) 
         [f"sh{d}" for d in config.map_degrees],
     )
     return out
+
+
+def _descent_weights(est, run, arcs: Arcs, descent_idx: np.ndarray, share: float) -> np.ndarray:
+    """Arc weights (one per arc of ``arcs``) of the descent refit: the descents at
+    ``share`` of the cost against the orbital arcs the run trains on
+    (:func:`hamgrav.fit.weights.share_weights`, by ``est``'s no-correction costs)."""
+    last = run.records[-1]
+    trained = np.setdiff1d(last.arcs, last.validation)
+    fitted = np.concatenate([trained, descent_idx])
+    costs = est.no_correction_costs(arcs.subset(fitted))
+    local = share_weights(costs, np.isin(fitted, descent_idx), share)
+    weights = np.ones(arcs.n_arcs)
+    weights[descent_idx] = local[-1]
+    return weights
 
 
 def _bin_summary(by_bin: dict) -> tuple[float | None, float | None]:
@@ -520,6 +548,11 @@ class DeepExperiment(Experiment):
             fixed_fit = est.fitted_.solver
             lap("fixed_order")
             if name in refit:
+                weights = (
+                    _descent_weights(est, run, all_arcs, descent_idx, config.descent_share)
+                    if config.descent_share
+                    else None
+                )
                 if config.descent_iterations:
                     # all descents trained, no validation stop: the network runs a fixed
                     # budget, SH its own solver to convergence
@@ -532,11 +565,17 @@ class DeepExperiment(Experiment):
                         if name == NETWORK
                         else None
                     )
-                    record = run.add(descent_idx, validate=False, solver=solver)
+                    record = run.add(
+                        descent_idx, validate=False, solver=solver, arc_weights=weights
+                    )
                 else:
-                    record = run.add(descent_idx)
+                    record = run.add(descent_idx, arc_weights=weights)
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
+                if weights is not None:
+                    # the weights the fit ran with, as its solver recorded them
+                    descent_fits[name]["descent_weight"] = significant(weights[descent_idx[0]])
+                    descent_fits[name]["arc_weights"] = est.fitted_.solver["arc_weights"]
                 lap("descent_refits")
             fits[name] = fixed_fit
         ev = evaluate(finals, truth, config, ctx.seed)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..core.arcs import Arcs
-from ..errors import PropagationError
+from ..errors import InputError, PropagationError
 from .base import Solver, SolveResult
 from .estimator import GravityEstimator, validation_split
 
@@ -83,7 +83,12 @@ class ContinualFit:
         return self.records[-1].result.params if self.records else None
 
     def add(
-        self, new: Sequence[int], *, validate: bool = True, solver: Solver | None = None
+        self,
+        new: Sequence[int],
+        *,
+        validate: bool = True,
+        solver: Solver | None = None,
+        arc_weights: np.ndarray | None = None,
     ) -> StageRecord:
         """Fit the next stage, which brings the arcs ``new`` (indices into ``arcs``). The
         returned record's result holds the stage's normal equations (n_params^2 per member),
@@ -91,7 +96,16 @@ class ContinualFit:
 
         ``validate`` False: none of the new arcs is held out and the fit returns its last
         iterate (no validation stop or choice); the arcs held out at earlier stages stay out
-        of training. ``solver`` replaces the estimator's (warm) solver for this stage."""
+        of training. ``solver`` replaces the estimator's (warm) solver for this stage.
+        ``arc_weights`` (one per arc of ``arcs``): each arc's weight in this stage's cost
+        (:meth:`GravityEstimator.fit`); a stage without them weighs every arc 1."""
+        if arc_weights is not None:  # checked before the run changes
+            arc_weights = np.asarray(arc_weights, dtype=float)
+            if arc_weights.shape != (self.arcs.n_arcs,):
+                raise InputError(
+                    f"arc_weights has shape {arc_weights.shape}; give one weight per arc of "
+                    f"the run ({self.arcs.n_arcs},)"
+                )
         estimator = self.estimator
         k = len(self.records)
         new = np.asarray(new, dtype=int)
@@ -103,6 +117,8 @@ class ContinualFit:
         # without validation the fit sees only its training arcs (so it has none to hold out)
         fitted = seen if validate else seen[~np.isin(seen, held_out)]
         subset = self.arcs.subset(fitted)
+        if arc_weights is not None:
+            arc_weights = arc_weights[fitted]
         if validate:
             local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
         else:
@@ -120,13 +136,14 @@ class ContinualFit:
                 reuse=previous,
                 solver=solver,
                 warm=warm,
+                arc_weights=arc_weights,
             )
         except PropagationError:
             if not warm:
                 raise
             # the previous stage's model does not carry the new arcs: restart this stage
             warm = False
-            estimator.fit(subset, validation=local_val, solver=solver)
+            estimator.fit(subset, validation=local_val, solver=solver, arc_weights=arc_weights)
         relative = estimator.diagnostics_.get("relative_cost")
         if relative is not None and not np.isfinite(relative):
             relative = None  # no correction costs nothing on these arcs: nothing to compare

@@ -293,6 +293,11 @@ def normal_system(
     as the Kaula weight does for SH: C is then the noise response of the penalised fit
     instead of what the arcs alone constrain. Models with a learnable term only; models with
     per-trajectory terms raise InputError."""
+    if fitted.solver.get("arc_weights"):
+        raise InputError(
+            "the fit weighed its arcs (arc_weights): its formal covariance is not implemented; "
+            "refit without arc weights for one"
+        )
     member_model, blocks = _members(fitted)
     if train is None:
         train = training_arcs(fitted, arcs)

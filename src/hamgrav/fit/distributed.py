@@ -129,7 +129,12 @@ class DistributedArcProblem(ArcProblem):
                 f"{uuid.uuid4().hex}-{a}",
                 description,
                 arcs.subset(np.arange(a, b)),
-                settings,
+                {
+                    **settings,
+                    "arc_weights": None
+                    if self.arc_weights is None
+                    else np.array(self.arc_weights[a:b]),
+                },
                 pure=False,
             )
             for a, b in zip(self.bounds[:-1], self.bounds[1:], strict=True)

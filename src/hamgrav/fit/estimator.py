@@ -621,6 +621,17 @@ class GravityEstimator:
         cls = self.term_class
         return cls is not None and cls.selects_on_validation
 
+    def no_correction_costs(self, arcs: Arcs) -> np.ndarray:
+        """Each arc's cost (n_arcs,) under this estimator's model with the learnable term
+        zero (the known part alone, per-trajectory parameters at their defaults), as a fit
+        measures it (canonical, or dimensionless when ``weighted``; no arc weights): what
+        no correction leaves, the scale of each arc's information. Propagates the arcs once,
+        no sensitivities."""
+        # the learnable term is zero: any candidate of a choice gives the same costs
+        first = {name: candidates[0] for name, candidates in self.choices().items()}
+        settings = {**self.get_params(), **first}
+        return _no_correction_costs(settings, arcs, np.arange(arcs.n_arcs))
+
     def split(self, arcs: Arcs) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The (training, validation) arc indices of a fit on ``arcs`` (None, None: all arcs
         train, no validation)."""
@@ -778,6 +789,7 @@ class GravityEstimator:
         resume: dict | None = None,
         reuse: SolveResult | None = None,
         warm: bool | None = None,
+        arc_weights: np.ndarray | None = None,
     ) -> GravityEstimator:
         """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
         stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`),
@@ -792,9 +804,18 @@ class GravityEstimator:
         ``resume`` is not. Hyperparameters to choose (:meth:`choices`) are chosen first, by
         cross-validation on the training arcs (:meth:`select`); the fit is then the
         chosen estimator's (a resumed fit chooses again, reproducibly, and resumes the
-        final fit)."""
+        final fit). ``arc_weights`` (n_arcs,): each arc's weight in the cost, training and
+        validation alike (:class:`~hamgrav.core.problem.ArcProblem`; e.g. a set of arcs
+        deweighted as a whole); not with hyperparameters to choose, and a weighted fit has
+        no formal covariance."""
         self.selection_ = []
+        arc_weights = _checked_arc_weights(arc_weights, arcs)
         if self.choices():
+            if arc_weights is not None:
+                raise InputError(
+                    f"arc weights and hyperparameters to choose ({', '.join(self.choices())}) "
+                    "do not go together: the choice is made on unweighted arcs; fix them first"
+                )
             return self._fit_chosen(
                 arcs,
                 init=init,
@@ -807,7 +828,7 @@ class GravityEstimator:
                 warm=warm,
             )
         model, prior_info = self.build_model(arcs)
-        problem = self._problem(model, arcs)
+        problem = self._problem(model, arcs, arc_weights)
         ensemble = model.learnable is not None and model.learnable.members > 1
         if ensemble and self.estimate_trajectory_params:
             raise InputError(
@@ -979,6 +1000,12 @@ class GravityEstimator:
             "n_params": problem.n_params,
             "diagnostics": self.diagnostics_,
         }
+        if arc_weights is not None:
+            solver_info["arc_weights"] = {
+                "min": float(arc_weights.min()),
+                "max": float(arc_weights.max()),
+                "n_not_one": int(np.count_nonzero(arc_weights != 1.0)),
+            }
         if members is not None:
             solver_info["members"] = members
         if problem.regulariser is not None:
@@ -1118,11 +1145,12 @@ class GravityEstimator:
             problem.regulariser.terms(theta[: problem.model.n_learn])
         return self
 
-    def _problem(self, model: Model, arcs: Arcs) -> ArcProblem:
+    def _problem(self, model: Model, arcs: Arcs, arc_weights=None) -> ArcProblem:
         settings = {
             "estimate_trajectory_params": self.estimate_trajectory_params,
             "trajectory_values": self.trajectory_values,
             "whitening": noise_whitening(arcs) if self.weighted else None,
+            "arc_weights": arc_weights,
             "regulariser": self.regulariser(model, arcs),
         }
         if self.client is not None:
@@ -1179,7 +1207,7 @@ class GravityEstimator:
         comes from the other members."""
         start = time.perf_counter()
         term = problem.model.learnable
-        member_problem = self._problem(problem.model.member(), problem.arcs)
+        member_problem = self._problem(problem.model.member(), problem.arcs, problem.arc_weights)
         blocks = term.split_members(init)
         first = 0 if resume is None else int(resume.get("member", 0))
         results: list[SolveResult | None] = [None] * term.members
@@ -1322,6 +1350,21 @@ def _no_correction_costs(settings: dict, arcs: Arcs, held) -> np.ndarray:
     theta = estimator.initial_params(estimator.model_, arcs)
     theta[: estimator.model_.n_learn] = 0.0
     return _held_out_problem(estimator, arcs, held).arc_costs(theta)
+
+
+def _checked_arc_weights(arc_weights, arcs: Arcs) -> np.ndarray | None:
+    """``arc_weights`` as a float array of one finite weight >= 0 per arc (None: none given);
+    InputError naming what is wrong."""
+    if arc_weights is None:
+        return None
+    weights = np.asarray(arc_weights, dtype=float)
+    if weights.shape != (arcs.n_arcs,):
+        raise InputError(
+            f"arc_weights has shape {weights.shape}; give one weight per arc ({arcs.n_arcs},)"
+        )
+    if not np.all(np.isfinite(weights) & (weights >= 0)) or not weights.any():
+        raise InputError("arc_weights must be finite and >= 0, and not all zero")
+    return weights
 
 
 def _held_out_problem(estimator: GravityEstimator, arcs: Arcs, held) -> ArcProblem:

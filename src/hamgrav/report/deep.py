@@ -387,6 +387,12 @@ def _descents_section(report: dict, net: str) -> list[str]:
         refit = (
             "the network holds out its usual share of the arriving arcs for validation: one descent"
         )
+    share = cfg.get("descent_share", 0.0)
+    if share:
+        refit += (
+            f"; the descent arcs weigh as a set {share:g} of the cost, the orbital arcs "
+            f"{1 - share:g}, each measured by what no correction leaves on it"
+        )
     lines = [
         "",
         "## Descent assimilation",
@@ -421,6 +427,8 @@ def _descents_section(report: dict, net: str) -> list[str]:
             line += ", restarted from its initialisation"
         if f.get("relative_cost") is not None:
             line += f", cost on the {f['checked_on']} {f['relative_cost']:.3g} of no correction's"
+        if f.get("descent_weight") is not None:
+            line += f", each descent arc weighing {f['descent_weight']:.3g}"
         lines.append(line)
     with_descents = [r for r in reps if "descents" in r]
     restarts = {
