@@ -217,6 +217,41 @@ def test_fit_weighted(arcs_file, tmp_path):
     assert b["initial_cost"] > 1e4 * a["initial_cost"]
 
 
+def test_fit_share_weighs_one_kind_of_arcs_as_a_set(small_arcs, tmp_path):
+    """--share KIND=SHARE: the arcs of that kind weigh, as a set, SHARE of the cost with no
+    correction; the fit records the weights; bad values and absent kinds are refused."""
+    from dataclasses import replace
+
+    from hamgrav.core.problem import ArcProblem
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.models import load_model
+
+    arcs = replace(small_arcs, trajectory_kind=("orbit", "orbit", "descent"))
+    path = save_arcs(arcs, tmp_path / "two-kinds.h5")
+    out = tmp_path / "shared.h5"
+    args = ["fit", str(path), "--model", "sh:2", "-o", str(out)]
+    result = runner.invoke(app, [*args, "--share", "descent=0.2"])
+    assert result.exit_code == 0, result.output
+    fitted = load_model(out)
+    descent = arcs.trajectory == 2
+    # what no correction leaves on each arc, computed apart from the CLI
+    costs = ArcProblem(fitted.model, arcs).arc_costs(np.zeros(fitted.model.n_learn))
+    expected = 0.2 / 0.8 * costs[~descent].sum() / costs[descent].sum()
+    record = fitted.solver["arc_weights"]
+    assert record["n_not_one"] == 3
+    assert [record["min"], record["max"]] == pytest.approx(sorted([1.0, expected]), rel=1e-9)
+    assert f"the 3 descent arcs weigh {expected:.3g} each, the other 6 arcs 1" in result.output
+    for bad, message in (
+        ("descent", "--share must be KIND=SHARE with SHARE in (0, 1)"),
+        ("descent=1", "--share must be KIND=SHARE with SHARE in (0, 1)"),
+        ("=0.2", "--share must be KIND=SHARE"),
+        ("particle=0.2", "have no arcs of kind 'particle' (their kinds: descent, orbit)"),
+    ):
+        refused = runner.invoke(app, [*args, "--share", bad])
+        assert refused.exit_code == 2, (bad, refused.output)
+        assert message in " ".join(refused.output.split()), (bad, refused.output)
+
+
 def test_fit_kaula_cv_and_the_truth_scan_refused(arcs_file, tmp_path):
     from hamgrav.io.models import load_model
 

@@ -892,6 +892,15 @@ WeightedOption = Annotated[
         "rotating-frame velocities / sigma_v.",
     ),
 ]
+ShareOption = Annotated[
+    str | None,
+    typer.Option(
+        metavar="KIND=SHARE",
+        help="Weigh the arcs of one trajectory kind as a set at SHARE (in (0, 1)) of the "
+        "cost, the other arcs at the rest, each measured by what no correction leaves on it "
+        "(e.g. descent=0.2: a few descents near the surface otherwise take nearly all of it).",
+    ),
+]
 KaulaOption = Annotated[
     str | None,
     typer.Option(
@@ -974,6 +983,7 @@ def fit(
     prior: PriorOption = None,
     solver: SolverOption = None,
     weighted: WeightedOption = False,
+    share: ShareOption = None,
     kaula: KaulaOption = None,
     harmonic: HarmonicOption = None,
     folds: FoldsOption = 5,
@@ -1004,6 +1014,7 @@ def fit(
     )
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)
+    shared = _share(share)
     limit = memory_limit(max_memory)
     _output(output, ARCS=arcs_file)  # -o MODEL --init MODEL continues the model in place
     ckpt = checkpoint_for_fit(output, resume)
@@ -1013,8 +1024,16 @@ def fit(
     settings |= {"adam_steps": steps, "learning_rate": learning_rate}
     settings |= {"prior": prior, "kaula": kaula_value, "seed": seed, "folds": folds}
     estimator = _fit_estimator(settings, arcs, arcs_file, weighted, body_obj)
+    weights = None if shared is None else _share_weights(estimator, arcs, arcs_file, *shared)
     run = prepare_fit(
-        estimator, arcs, output, init=init, resume=resume, checkpoint=ckpt, init_name="--init"
+        estimator,
+        arcs,
+        output,
+        init=init,
+        resume=resume,
+        checkpoint=ckpt,
+        init_name="--init",
+        arc_weights=weights,
     )
     _run_and_write(run, arcs_file, workers, scheduler, steps)
     _report_fit(estimator, output, settings["term"], strict)
@@ -1037,6 +1056,46 @@ def _run_and_write(run, arcs_file: Path, workers: int, scheduler, steps: int) ->
         if stop is None:
             raise
         _fit_stopped(stop, ckpt, output, written=_file_id(output) not in (None, before))
+
+
+def _share(share: str | None) -> tuple[str, float] | None:
+    """--share KIND=SHARE as (kind, share), checked; None when not given."""
+    if share is None:
+        return None
+    kind, sep, value = share.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not sep or not kind.strip() or not 0.0 < number < 1.0:
+        raise InputError(
+            f"--share must be KIND=SHARE with SHARE in (0, 1), e.g. descent=0.2; got {share!r}"
+        )
+    return kind.strip(), number
+
+
+def _share_weights(estimator, arcs, arcs_file: Path, kind: str, share: float):
+    """The arc weights (n_arcs,) of --share KIND=SHARE on ``arcs`` (one propagation of
+    every arc with no correction); says what they are."""
+    import numpy as np
+
+    from .fit.weights import share_weights
+
+    kinds = sorted(set(arcs.trajectory_kind))
+    in_set = np.array([arcs.trajectory_kind[t] == kind for t in arcs.trajectory])
+    if not in_set.any() or in_set.all():
+        raise InputError(
+            f"--share {kind}={share:g}: arcs {arcs_file} have "
+            + ("no" if not in_set.any() else "only")
+            + f" arcs of kind {kind!r} (their kinds: {', '.join(kinds)}); a share weighs one "
+            "kind against the others"
+        )
+    weights = share_weights(estimator.no_correction_costs(arcs), in_set, share)
+    console.print(
+        f"--share {kind}={share:g}: the {int(in_set.sum())} {kind} arcs weigh "
+        f"{weights[in_set][0]:.3g} each, the other {int((~in_set).sum())} arcs 1"
+    )
+    return weights
 
 
 def _fit_estimator(settings: dict, arcs, arcs_file: Path, weighted: bool, body_obj):

@@ -58,7 +58,7 @@ def test_a_model_of_another_structure_body_or_frame_is_not_continued(
         _sh(body).continue_fit(heavier, small_arcs)
 
 
-def test_the_checkpoint_identity_tells_fits_apart(first, small_arcs, synthetic_truth):
+def test_the_checkpoint_identity_tells_fits_apart(first, small_arcs, synthetic_truth, tmp_path):
     body = synthetic_truth.body
     est = _sh(body)
     base = est.checkpoint_identity(small_arcs, est.make_solver())
@@ -77,6 +77,16 @@ def test_the_checkpoint_identity_tells_fits_apart(first, small_arcs, synthetic_t
                 small_arcs, est.make_solver()
             )
         )
+    # the same fit with arc weights, or other weights, is another fit
+    from hamgrav.io.fit_run import prepare_fit
+
+    weighed = [
+        prepare_fit(est, small_arcs, tmp_path / f"w{k}.h5", arc_weights=w).identity
+        for k, w in enumerate([None, np.ones(9), np.linspace(1, 2, 9)])
+    ]
+    assert weighed[0] == base
+    others += weighed[1:]
+    assert weighed[1] != weighed[2]
     assert all(other != base for other in others)
     import json
 

@@ -13,6 +13,7 @@ arcs, body, settings, solver or starting model) is not resumed.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -97,6 +98,8 @@ class FitRun:
         identity: the fit's checkpoint identity (plain data).
         init, state: the parameters and solver state of a resumed checkpoint (None: not
             resumed).
+        arc_weights: each arc's weight in the cost (None: all 1; see
+            :meth:`GravityEstimator.fit`).
     """
 
     estimator: GravityEstimator
@@ -107,6 +110,7 @@ class FitRun:
     identity: dict
     init: np.ndarray | None = None
     state: dict | None = None
+    arc_weights: np.ndarray | None = None
 
     def fit(self, callback=None) -> GravityEstimator:
         """Fit (or continue ``previous``; resume the checkpoint when one was read), saving
@@ -119,6 +123,7 @@ class FitRun:
                 self.checkpoint, th, st, self.identity
             ),
             "resume": self.state,
+            "arc_weights": self.arc_weights,
         }
         if self.previous is not None:
             return self.estimator.continue_fit(self.previous, self.arcs, **how)
@@ -149,14 +154,15 @@ def prepare_fit(
     resume: bool = False,
     checkpoint: Path | None = None,
     init_name: str | None = None,
+    arc_weights: np.ndarray | None = None,
 ) -> FitRun:
     """Everything ``hamgrav fit`` checks before a fit starts, as a :class:`FitRun`: the
     checkpoint beside ``output`` (:func:`checkpoint_for_fit`; pass ``checkpoint`` when it was
     checked already), the model to continue ``init`` (a model file or a
     :class:`FittedModel`: :meth:`GravityEstimator.check_continuation`; ``init_name`` names
     it in errors), the fit's identity (its arcs, body, settings, solver: the warm solver of
-    a continued fit, and its starting model) and, with ``resume``, the checkpoint read and
-    refused if another fit wrote it."""
+    a continued fit, and its starting model, and the ``arc_weights`` when given) and, with
+    ``resume``, the checkpoint read and refused if another fit wrote it."""
     output = Path(output)
     ckpt = checkpoint if checkpoint is not None else checkpoint_for_fit(output, resume)
     previous = init
@@ -166,7 +172,11 @@ def prepare_fit(
         estimator.check_continuation(init, arcs)
     solver = (estimator.warm_solver if previous is not None else None) or estimator.make_solver()
     identity = estimator.checkpoint_identity(arcs, solver, init=previous)
-    run = FitRun(estimator, arcs, output, ckpt, previous, identity)
+    if arc_weights is not None:
+        arc_weights = np.asarray(arc_weights, dtype=float)
+        digest = hashlib.sha256(np.ascontiguousarray(arc_weights).tobytes()).hexdigest()
+        identity["arc_weights_sha256"] = digest
+    run = FitRun(estimator, arcs, output, ckpt, previous, identity, arc_weights=arc_weights)
     if resume:
         run.init, run.state = models.load_checkpoint(ckpt, expect=identity)
     return run
@@ -180,17 +190,27 @@ def fit_to_file(
     init: str | os.PathLike | FittedModel | None = None,
     resume: bool = False,
     callback=None,
+    arc_weights: np.ndarray | None = None,
 ) -> FittedModel:
     """Fit ``estimator`` to ``arcs`` (an arcs file, recorded in the model, or
     :class:`Arcs`) and write the model file ``output``, as ``hamgrav fit`` does: a checkpoint
     beside it while it runs (kept if the fit is stopped), ``resume`` to continue from it,
     ``init`` (a model file or :class:`FittedModel`) to continue that model as a continual
-    stage. Returns the model written."""
+    stage; ``arc_weights`` each arc's weight in the cost (:meth:`GravityEstimator.fit`).
+    Returns the model written."""
     # (output may be the model of init: it is continued in place)
     check_output(Path(output), "output", {} if isinstance(arcs, Arcs) else {"arcs": arcs})
     ckpt = checkpoint_for_fit(output, resume)
     arcs_file = None
     if not isinstance(arcs, Arcs):
         arcs_file, arcs = arcs, arcs_io.load_arcs(arcs)
-    run = prepare_fit(estimator, arcs, output, init=init, resume=resume, checkpoint=ckpt)
+    run = prepare_fit(
+        estimator,
+        arcs,
+        output,
+        init=init,
+        resume=resume,
+        checkpoint=ckpt,
+        arc_weights=arc_weights,
+    )
     return run.run(arcs_file, callback)
