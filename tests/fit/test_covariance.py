@@ -19,6 +19,7 @@ from hamgrav.core.uncertainty import potential_gradient, potential_sigma
 from hamgrav.errors import InputError
 from hamgrav.fit.covariance import (
     calibration,
+    fit_arc_weights,
     formal_covariance,
     normal_system,
     parameter_covariance,
@@ -127,12 +128,22 @@ def test_sample_covariance_maps_position_noise_into_momenta():
     assert s[1, 3] == -4.0 and s[0, 4] == 4.0
 
 
-@pytest.fixture(scope="module", params=[False, True], ids=["unweighted", "weighted"])
+#: Weights of the three arcs of the arc-weighted tiny fit.
+TINY_ARC_WEIGHTS = np.array([1.0, 0.3, 2.5])
+
+
+@pytest.fixture(
+    scope="module",
+    params=["unweighted", "weighted", "arc-weighted"],
+)
 def tiny_fit(request, small_arcs, synthetic_truth):
-    """An SH 2 fit to three arcs, unweighted or weighted (whitened), and its estimator."""
+    """An SH 2 fit to three arcs, unweighted, weighted (whitened) or whitened with
+    :data:`TINY_ARC_WEIGHTS`, and its estimator."""
     arcs = small_arcs.subset(np.array([0, 4, 8]))
-    est = GravityEstimator("sh", degree=2, weighted=request.param, body=synthetic_truth.body)
-    return arcs, est.fit(arcs)
+    whitened = request.param != "unweighted"
+    est = GravityEstimator("sh", degree=2, weighted=whitened, body=synthetic_truth.body)
+    weights = TINY_ARC_WEIGHTS if request.param == "arc-weighted" else None
+    return arcs, est.fit(arcs, arc_weights=weights)
 
 
 @pytest.mark.parametrize("anchors", [True, False])
@@ -144,6 +155,8 @@ def test_covariance_agrees_with_brute_force(tiny_fit, anchors):
     E[Q] = E[(e - A G e)^T W^2 (e - A G e)]. The data cost is what the fit minimised."""
     arcs, est = tiny_fit
     fitted, weighted = est.fitted_, est.weighted
+    arc_weights = fitted.solver.get("arc_weights")
+    per_arc = np.ones(arcs.n_arcs) if arc_weights is None else TINY_ARC_WEIGHTS
     sigmas = noise_sigmas(arcs)
     w = noise_whitening(arcs) if weighted else np.eye(6)
     n_arcs, m = arcs.n_arcs, arcs.samples_per_arc
@@ -159,7 +172,8 @@ def test_covariance_agrees_with_brute_force(tiny_fit, anchors):
             if anchors:
                 b[row, i * m * 6 : (i * m + 1) * 6] = -phi[i, k]
     s_e = b @ np.kron(np.eye(n_arcs * m), sample_covariance(sigmas[0], sigmas[3])) @ b.T
-    big_w = np.kron(np.eye(n_arcs * m), w)
+    # each sample's W times the square root of its arc's weight in the fit's cost
+    big_w = np.kron(np.diag(np.repeat(np.sqrt(per_arc), m)), w)
     w2 = big_w.T @ big_w
     normal = a.T @ w2 @ a
     g = np.linalg.solve(normal, a.T @ w2)
@@ -170,7 +184,8 @@ def test_covariance_agrees_with_brute_force(tiny_fit, anchors):
     system = normal_system(fitted, arcs, anchors=anchors)
     np.testing.assert_allclose(system.data_normal[0], normal, rtol=1e-10)
     # the normal matrix the fit itself used at its solution (weighted: the whitened A)
-    fit_normal = est._problem(fitted.model, arcs).normal_equations(fitted.params)[2]
+    problem = est._problem(fitted.model, arcs, None if arc_weights is None else per_arc)
+    fit_normal = problem.normal_equations(fitted.params)[2]
     np.testing.assert_allclose(system.data_normal[0], fit_normal, rtol=1e-10)
     assert system.cost[0] == pytest.approx(float(r @ w2 @ r), rel=1e-10)
     assert system.cost[0] == pytest.approx(2 * est.result_.cost, rel=1e-10)
@@ -179,8 +194,25 @@ def test_covariance_agrees_with_brute_force(tiny_fit, anchors):
     assert result.ranks == (5,)
     np.testing.assert_allclose(result.matrix, cov, rtol=1e-8, atol=1e-8 * np.abs(cov).max())
     assert result.expected_cost[0] == pytest.approx(expected, rel=1e-8)
-    if weighted and not anchors:  # white noise, whitened: the textbook N - rank
+    if weighted and arc_weights is None and not anchors:  # white noise, whitened: N - rank
         assert expected == pytest.approx(n_arcs * (m - 1) * 6 - 5, rel=1e-8)
+
+
+def test_the_weights_of_a_fit_are_read_from_its_record(tiny_fit):
+    """fit_arc_weights: None for a fit without arc weights, the recorded weights otherwise;
+    a record without per-arc weights (an older file) or other arcs are refused."""
+    arcs, est = tiny_fit
+    fitted = est.fitted_
+    if "arc_weights" not in fitted.solver:
+        assert fit_arc_weights(fitted, arcs) is None
+        return
+    np.testing.assert_array_equal(fit_arc_weights(fitted, arcs), TINY_ARC_WEIGHTS)
+    with pytest.raises(InputError, match="weighed 3 arcs and 2 are given"):
+        normal_system(fitted, arcs.subset([0, 1]))
+    summary = {k: v for k, v in fitted.solver["arc_weights"].items() if k != "values"}
+    older = replace(fitted, solver={**fitted.solver, "arc_weights": summary})
+    with pytest.raises(InputError, match="does not record the weights per arc"):
+        normal_system(older, arcs)
 
 
 @pytest.fixture(scope="module")

@@ -575,7 +575,10 @@ class DeepExperiment(Experiment):
                 if weights is not None:
                     # the weights the fit ran with, as its solver recorded them
                     descent_fits[name]["descent_weight"] = significant(weights[descent_idx[0]])
-                    descent_fits[name]["arc_weights"] = est.fitted_.solver["arc_weights"]
+                    record_w = est.fitted_.solver["arc_weights"]
+                    descent_fits[name]["arc_weights"] = {
+                        k: v for k, v in record_w.items() if k != "values"
+                    }
                 lap("descent_refits")
             fits[name] = fixed_fit
         ev = evaluate(finals, truth, config, ctx.seed)

@@ -92,6 +92,7 @@ __all__ = [
     "RANK_THRESHOLD",
     "NormalSystem",
     "ParameterCovariance",
+    "fit_arc_weights",
     "formal_covariance",
     "normal_system",
     "parameter_covariance",
@@ -132,6 +133,29 @@ def training_arcs(fitted: FittedModel, arcs: Arcs) -> np.ndarray | None:
         arcs.n_arcs, float(info["validation_fraction"]), int(info["seed"])
     )
     return train if len(validation) == n_val else None
+
+
+def fit_arc_weights(fitted: FittedModel, arcs: Arcs) -> np.ndarray | None:
+    """Each of ``arcs``' weight in ``fitted``'s cost (its solver record's ``arc_weights``,
+    :meth:`~hamgrav.fit.estimator.GravityEstimator.fit`), or None for a fit that weighed
+    every arc 1. InputError when the record has no weights per arc (a model file written
+    before they were recorded) or they are not one per arc of ``arcs``."""
+    record = fitted.solver.get("arc_weights")
+    if not record:
+        return None
+    values = record.get("values")
+    if values is None:
+        raise InputError(
+            "the fit weighed its arcs, but its model file does not record the weights per "
+            "arc: refit it with this version of hamgrav for its formal covariance"
+        )
+    values = np.asarray(values, dtype=float)
+    if values.shape != (arcs.n_arcs,):
+        raise InputError(
+            f"the fit weighed {len(values)} arcs and {arcs.n_arcs} are given: give the arcs "
+            "it was fitted to"
+        )
+    return values
 
 
 def _members(fitted: FittedModel) -> tuple[object, list[np.ndarray]]:
@@ -293,11 +317,7 @@ def normal_system(
     as the Kaula weight does for SH: C is then the noise response of the penalised fit
     instead of what the arcs alone constrain. Models with a learnable term only; models with
     per-trajectory terms raise InputError."""
-    if fitted.solver.get("arc_weights"):
-        raise InputError(
-            "the fit weighed its arcs (arc_weights): its formal covariance is not implemented; "
-            "refit without arc weights for one"
-        )
+    arc_weights = fit_arc_weights(fitted, arcs)
     member_model, blocks = _members(fitted)
     if train is None:
         train = training_arcs(fitted, arcs)
@@ -319,17 +339,20 @@ def normal_system(
     m = arcs.samples_per_arc
     for start in range(0, len(idx_all), chunk):
         idx = idx_all[start : start + chunk]
+        # each arc's weight in the fit's cost (1 without arc weights): its W^2 is w_i W^2
+        arc_w = np.ones(len(idx)) if arc_weights is None else arc_weights[idx]
         stacked = []
         for k, theta in enumerate(blocks):
             r, a = problem.design(theta, idx)
             r = r.reshape(len(idx), m, 6)
-            wr = r @ w.T  # the residuals as the fit saw them, W r
-            cost[k] += float(np.sum(wr**2))
+            wr = r @ w.T  # the residuals as the fit saw them, W r (times sqrt(w_i))
+            cost[k] += float(np.sum(arc_w[:, None, None] * wr**2))
             a = a.reshape(len(idx), m, 6, n_b)
-            h = np.matmul(w2, a)  # W^T A_f = W^2 A, sample by sample
+            # W^T A_f = W^2 A, sample by sample, times the arc's weight
+            h = np.matmul(w2, a) * arc_w[:, None, None, None]
             normal[k] += a.reshape(-1, n_b).T @ h.reshape(-1, n_b)  # A^T W^2 A
             # tr(W^2 S_e) over the samples after the anchor: white noise plus the anchor's
-            trace[k] += len(idx) * (m - 1) * white_trace
+            trace[k] += float(arc_w.sum()) * (m - 1) * white_trace
             if anchors:
                 transition = state_transition(
                     member_model,
@@ -344,6 +367,8 @@ def normal_system(
                 # laid out as Phi is: einsum's order of summation, so the unweighted sum's
                 # rounding, depends on the operands' strides)
                 w_phi = np.matmul(w, transition)[:, 1:]
+                if arc_weights is not None:
+                    w_phi = w_phi * np.sqrt(arc_w)[:, None, None, None]
                 trace[k] += float(
                     np.einsum("i,akij,jl,akil->", np.ones(6), w_phi, sample_cov, w_phi)
                 )

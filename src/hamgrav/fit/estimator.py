@@ -806,8 +806,8 @@ class GravityEstimator:
         chosen estimator's (a resumed fit chooses again, reproducibly, and resumes the
         final fit). ``arc_weights`` (n_arcs,): each arc's weight in the cost, training and
         validation alike (:class:`~hamgrav.core.problem.ArcProblem`; e.g. a set of arcs
-        deweighted as a whole); not with hyperparameters to choose, and a weighted fit has
-        no formal covariance."""
+        deweighted as a whole; recorded in ``fitted_.solver``); not with hyperparameters to
+        choose."""
         self.selection_ = []
         arc_weights = _checked_arc_weights(arc_weights, arcs)
         if self.choices():
@@ -1005,6 +1005,7 @@ class GravityEstimator:
                 "min": float(arc_weights.min()),
                 "max": float(arc_weights.max()),
                 "n_not_one": int(np.count_nonzero(arc_weights != 1.0)),
+                "values": arc_weights.tolist(),
             }
         if members is not None:
             solver_info["members"] = members
