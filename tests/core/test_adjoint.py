@@ -93,6 +93,49 @@ def test_sh_and_estimated_srp_gradient(small_arcs, synthetic_truth):
     assert np.all(grad[sh.n_params :] != 0)  # each trajectory's coefficient from its own arcs
 
 
+@pytest.fixture(scope="module")
+def long_arcs(synthetic_truth):
+    """Arcs of 40 samples 300 s apart (about 1.7 rad of motion, several segments of the
+    interpolation, whose ends fall between samples)."""
+    from hamgrav.sim.tracking import OrbitFamily, TrackingConfig, simulate_orbits
+
+    families = [OrbitFamily(1.3, 20.0), OrbitFamily(2.0, 45.0)]
+    tracking = TrackingConfig(arcs_per_orbit=2, cadence_s=300.0, window_spin_periods=2.0)
+    return simulate_orbits(synthetic_truth, families, tracking, seed=3)
+
+
+def test_long_arcs_are_interpolated_on_segments(long_arcs, network, monkeypatch):
+    """On arcs spanning several segments the gradient agrees with the forward one; with
+    fewer nodes per segment it does not (the check sees the interpolation)."""
+    model, theta = network
+    segments = [
+        len(t) // propagation.ADJOINT_SEGMENT_NODES
+        for t, _ in propagation._arc_nodes(long_arcs.times, long_arcs.states)
+    ]
+    assert min(segments) >= 4
+    _agree(ArcProblem(model, long_arcs), theta)
+    monkeypatch.setattr(propagation, "ADJOINT_SEGMENT_NODES", 3)
+    reference = ArcProblem(model, long_arcs, gradient_method="forward").gradient(theta)[1]
+    coarse = ArcProblem(model, long_arcs).gradient(theta)[1]
+    assert np.abs(coarse - reference).max() > 1e-7 * np.abs(reference).max()
+
+
+def test_the_node_weights_integrate_polynomials_exactly():
+    """The weights W (node x interval) of an arc integrate, on every interval between its
+    samples, any polynomial of degree below the nodes per segment given by its values at
+    the nodes (sum_i W_ik p(tau_i) = integral of p over interval k), here on one segment and
+    on several."""
+    n = propagation.ADJOINT_SEGMENT_NODES
+    times = np.array([[0.0, 0.013, 0.05, 0.051, 0.2], [0.0, 0.4, 0.9, 1.3, 2.1]])
+    states = np.zeros((2, 5, 6))
+    states[..., 0] = 2.0  # radius 2: the rate is the spin's, 1
+    poly = np.polynomial.Polynomial(np.linspace(1.0, -2.0, n))  # degree n - 1
+    for (node_times, weights), t in zip(propagation._arc_nodes(times, states), times, strict=True):
+        exact = np.diff(poly.integ()(t))
+        np.testing.assert_allclose(poly(node_times) @ weights, exact, rtol=1e-12, atol=1e-14)
+    assert [len(t) for t, _ in propagation._arc_nodes(times, states)] == [n, 9 * n]
+
+
 @pytest.mark.parametrize("keep", [[0, 19, 39], [0, 39], [0]])
 def test_sparse_samples(small_arcs, network, keep):
     """Samples far apart: the quadrature between them spans long intervals (the costate
@@ -145,7 +188,7 @@ def test_an_arc_whose_costate_pass_fails_is_reported(small_arcs, network, monkey
 
     model, theta = network
     rates = model_module.parameter_rate_function(model)
-    n_nodes = (small_arcs.times.shape[1] - 1) * propagation.ADJOINT_QUADRATURE_NODES
+    n_nodes = len(propagation._arc_nodes(small_arcs.times[:1], small_arcs.states[:1])[0][0])
     monkeypatch.setattr(
         model_module, "parameter_rate_function", lambda m: _NaNForArc(rates, n_nodes)
     )
@@ -171,10 +214,10 @@ def test_unknown_method_refused(small_arcs, network):
         ArcProblem(network[0], small_arcs, gradient_method="reverse")
 
 
-def test_an_arcs_gradient_does_not_depend_on_the_other_arcs(small_arcs, network):
-    """Each arc's quadrature nodes are its own (a batch pads the shorter node lists with nodes
-    of weight 0): an arc sampled 14 s apart gives the same gradient alone and in one batch
-    with an arc sampled 266 s apart, which needs many more nodes."""
+def test_an_arcs_gradient_does_not_depend_on_the_other_arcs(small_arcs, long_arcs, network):
+    """Each arc's nodes are its own (a batch pads the shorter node lists with nodes of
+    weight 0): an arc sampled 14 s apart gives the same gradient alone and in one batch with
+    an arc sampled 300 s apart, which needs many more nodes."""
     model, theta = network
     dense = replace(
         small_arcs,
@@ -184,12 +227,12 @@ def test_an_arcs_gradient_does_not_depend_on_the_other_arcs(small_arcs, network)
     )
     keep = [0, 19, 38]
     sparse = replace(
-        small_arcs,
-        times=small_arcs.times[:, keep],
-        states=small_arcs.states[:, keep],
-        true_states=small_arcs.true_states[:, keep],
+        long_arcs,
+        times=long_arcs.times[:, keep],
+        states=long_arcs.states[:, keep],
+        true_states=long_arcs.true_states[:, keep],
     )
-    a, b = dense.subset([2]), sparse.subset([5])
+    a, b = dense.subset([2]), sparse.subset([1])
     alone_a = _adjoint(model, a, theta, threads=1)
     alone_b = _adjoint(model, b, theta, threads=1)
     together = adjoint_gradient(

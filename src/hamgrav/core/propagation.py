@@ -219,74 +219,96 @@ class AdjointGradient:
 #: the forward sensitivities' to 5e-12 relative at 1e-7 (2e-12 at 1e-8, 5e-10 at 1e-6), and
 #: 1e-7 takes 0.8-0.9 of 1e-8's time.
 ADJOINT_TOLERANCE = 1e-7
-#: Gauss-Legendre nodes per piece of an interval between samples at which the parameter
-#: rates are integrated (exact for polynomials of degree 2 * nodes - 1): on the 112 Itokawa
-#: arcs (14 s apart, one piece each) one node leaves 6e-7 relative, two 4e-13, three the
-#: tolerance's floor. Two would save 0.3 of the time, but on arcs sampled far apart (the
-#: tests' 266 s) they leave 7e-7 at the phase below and 4e-9 at a quarter of it.
-ADJOINT_QUADRATURE_NODES = 3
-#: Longest piece of an interval between samples, in radians of the fastest motion along the
-#: arc (see :func:`_arc_nodes`); the quadrature's error falls as its sixth power.
-ADJOINT_QUADRATURE_PHASE = 0.02
+#: Gauss-Legendre nodes per segment of an arc, at which the parameter rates are evaluated
+#: (see :func:`_arc_nodes`).
+ADJOINT_SEGMENT_NODES = 8
+#: Longest segment of an arc, in radians of the fastest motion along it (see
+#: :func:`_arc_nodes`); the interpolation's error falls as its eighth power.
+ADJOINT_SEGMENT_PHASE = 0.25
+
+
+def _lagrange_in_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the n Gauss-Legendre nodes u_i on [-1, 1], B (n, n)): the Lagrange polynomial of node
+    i is L_i(u) = sum_k B[i, k] P_k(u) (the quadrature integrates P_k P_l exactly for
+    k + l <= 2n - 1, so the interpolant at its nodes has these Legendre coefficients)."""
+    nodes, weights = np.polynomial.legendre.leggauss(n)
+    legendre = np.polynomial.legendre.legvander(nodes, n - 1)  # P_k(u_i)
+    return nodes, weights[:, None] * (2 * np.arange(n) + 1) / 2 * legendre
+
+
+def _legendre_integrals(u: np.ndarray, n: int) -> np.ndarray:
+    """F_k(u) = integral of P_k from -1 to u, k < n, shape (*u.shape, n)."""
+    p = np.polynomial.legendre.legvander(u, n)
+    out = np.empty((*np.shape(u), n))
+    out[..., 0] = u + 1.0
+    k = np.arange(1, n)
+    out[..., 1:] = (p[..., 2:] - p[..., :-2]) / (2 * k + 1)
+    return out
 
 
 def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
-    """Gauss-Legendre nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states``
-    (n, m, 6)) for the integral of the parameter rates between samples: each interval is cut
-    into as many equal pieces as it needs for each to span at most
-    :data:`ADJOINT_QUADRATURE_PHASE` of the motion at the arc's smallest radius (canonical
-    rate max(1, r^-3/2): the spin's or the orbit's), with :data:`ADJOINT_QUADRATURE_NODES`
-    nodes in each piece. An arc's nodes depend on that arc alone.
+    """The nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states`` (n, m, 6)) for
+    the integral of the parameter rates, and the weights that fold the costate into them.
 
-    Returns, per arc, (node times, each node's interval, each node's weight) in time order."""
-    nodes, weights = np.polynomial.legendre.leggauss(ADJOINT_QUADRATURE_NODES)
-    q = len(nodes)
+    Between samples t_k and t_k+1 the costate is lam(t) = Phi(t)^-T c_k with c_k constant
+    (:func:`adjoint_gradient`), so the gradient is sum_k integral over [t_k, t_k+1] of
+    M(t) c_k, with M(t) = (df/dp)^T Phi(t)^-T smooth over the whole arc (the jumps are all
+    in c). The arc is cut into equal segments, as many as it needs for each to span at most
+    :data:`ADJOINT_SEGMENT_PHASE` of the motion at the arc's smallest radius (canonical rate
+    max(1, r^-3/2): the spin's or the orbit's), and M is interpolated on each segment at
+    :data:`ADJOINT_SEGMENT_NODES` Gauss-Legendre nodes tau_i (Lagrange polynomials L_i). The
+    integral is then sum_i M(tau_i) d_i with d_i = sum_k c_k (integral of L_i over
+    [t_k, t_k+1] within the segment): one evaluation of the rates per node, at the costate
+    Phi(tau_i)^-T d_i, whatever the number of samples. An arc's nodes depend on that arc
+    alone.
+
+    Returns, per arc, (node times (K,), weights (K, m - 1): d = weights @ c)."""
+    n_nodes = ADJOINT_SEGMENT_NODES
+    unit_nodes, basis = _lagrange_in_legendre(n_nodes)
     radius = np.linalg.norm(states[..., :3], axis=-1)
     smallest = np.where(np.isfinite(radius).all(axis=1), radius.min(axis=1), 1.0)
     rate = np.maximum(1.0, smallest**-1.5)
-    span = times[:, 1:] - times[:, :-1]
-    pieces = np.maximum(np.ceil(span * rate[:, None] / ADJOINT_QUADRATURE_PHASE), 1).astype(int)
+    start, span = times[:, 0], times[:, -1] - times[:, 0]
+    segments = np.maximum(np.ceil(span * rate / ADJOINT_SEGMENT_PHASE), 1).astype(int)
     out: list = [None] * len(times)
-    # arcs cut alike (as a campaign's usually are) share one layout, computed once
-    layouts, which = np.unique(pieces, axis=0, return_inverse=True)
-    for k, layout in enumerate(layouts):
-        arcs = np.flatnonzero(which.ravel() == k)
-        interval = np.repeat(np.arange(len(layout)), layout * q)
-        per_piece = np.repeat(layout, layout * q)
-        # each node's place in its interval, in (0, 1): its piece, then the node in the piece
-        piece = np.arange(len(interval)) // q - np.repeat(np.cumsum(layout) - layout, layout * q)
-        place = (piece + 0.5 + 0.5 * np.tile(nodes, int(layout.sum()))) / per_piece
-        node_times = times[arcs][:, interval] + span[arcs][:, interval] * place
-        node_weights = (
-            0.5 * span[arcs][:, interval] * (np.tile(weights, int(layout.sum())) / per_piece)
+    for count in np.unique(segments):
+        arcs = np.flatnonzero(segments == count)
+        width = span[arcs] / count  # (a,)
+        left = start[arcs][:, None] + width[:, None] * np.arange(count)  # (a, S)
+        # the samples in each segment's variable u in [-1, 1], clipped to the segment
+        u = 2.0 * (times[arcs][:, None, :] - left[..., None]) / width[:, None, None] - 1.0
+        integrals = _legendre_integrals(np.clip(u, -1.0, 1.0), n_nodes)  # (a, S, m, n)
+        within = np.diff(integrals, axis=2)  # (a, S, m - 1, n): each interval's part
+        weights = 0.5 * width[:, None, None, None] * np.einsum("in,askn->asik", basis, within)
+        weights = weights.reshape(len(arcs), count * n_nodes, -1)
+        node_times = (left[..., None] + 0.5 * width[:, None, None] * (unit_nodes + 1.0)).reshape(
+            len(arcs), -1
         )
         for row, arc in enumerate(arcs):
-            out[arc] = (node_times[row], interval, node_weights[row])
+            out[arc] = (node_times[row], weights[row])
     return out
 
 
 def _batch_grid(times: np.ndarray, arc_nodes: list) -> tuple:
     """The grid of one SIMD batch (``times`` (w, m) of its lanes' arcs and their
     :func:`_arc_nodes`): every lane's samples and nodes in time order, the lanes with fewer
-    nodes padded with nodes of weight 0 in their last interval, so that all lanes share one
-    grid length. Returns (grid (w, m + k), node times, intervals and weights (w, k), the
-    samples' and the nodes' places in the grid (w, m), (w, k))."""
+    nodes padded with nodes of weight 0 in their first interval, so that all lanes share one grid
+    length. Returns (grid (w, m + k), node weights (w, k, m - 1), the samples' and the
+    nodes' places in the grid (w, m), (w, k))."""
     w, m = times.shape
-    k = max(len(t) for t, _, _ in arc_nodes)
-    node_times, interval, weights = np.empty((w, k)), np.empty((w, k), int), np.zeros((w, k))
-    for lane, (t, iv, wt) in enumerate(arc_nodes):
+    k = max(len(t) for t, _ in arc_nodes)
+    node_times, weights = np.empty((w, k)), np.zeros((w, k, m - 1))
+    for lane, (t, wt) in enumerate(arc_nodes):
         n = len(t)
-        node_times[lane, :n], interval[lane, :n], weights[lane, :n] = t, iv, wt
-        if n < k:  # strictly between the last node and the last sample
+        node_times[lane, :n], weights[lane, :n] = t, wt
+        if n < k:  # strictly inside the first interval: apart from every sample
             fraction = np.arange(1, k - n + 1) / (k - n + 1)
-            node_times[lane, n:] = t[-1] + (times[lane, -1] - t[-1]) * fraction
-            interval[lane, n:] = m - 2
-    # sample j sorts just before interval j's nodes (stable: the nodes keep their order)
-    keys = np.concatenate([np.broadcast_to(np.arange(m) - 0.5, (w, m)), interval], axis=1)
-    order = np.argsort(keys, axis=1, kind="stable")
+            node_times[lane, n:] = times[lane, 0] + (times[lane, 1] - times[lane, 0]) * fraction
+    # a sample sorts before a node at the same time (stable)
+    order = np.argsort(np.concatenate([times, node_times], axis=1), axis=1, kind="stable")
     grid = np.take_along_axis(np.concatenate([times, node_times], axis=1), order, axis=1)
     place = np.argsort(order, axis=1)
-    return grid, node_times, interval, weights, place[:, :m], place[:, m:]
+    return grid, weights, place[:, :m], place[:, m:]
 
 
 def adjoint_gradient(
@@ -317,9 +339,10 @@ def adjoint_gradient(
     forward pass of the state and Phi (42 variables, at ``adjoint_tol``, default
     :data:`ADJOINT_TOLERANCE`) over each whole arc gives them at every sample and at the
     quadrature's nodes between samples (dense output: the steps are not cut at the samples).
-    The gradient is the integral of (df/dp)^T lam, by Gauss-Legendre quadrature
-    (:func:`_arc_nodes`) of :func:`hamgrav.core.model.parameter_rate_function` (one reverse
-    sweep of lam . f per node).
+    The gradient is the integral of (df/dp)^T lam: (df/dp)^T Phi^-T, smooth over the arc,
+    is interpolated on segments of it (:func:`_arc_nodes`), which leaves one evaluation of
+    :func:`hamgrav.core.model.parameter_rate_function` (one reverse sweep of lam . f) per
+    node, a few per radian of motion, not per interval between samples.
     Memory: the states, and per thread one SIMD batch's 42 variables at the samples and
     nodes and their rates (n_system_params per node); never a sensitivity per sample. The
     first ``n_shared`` runtime parameters are shared by all arcs (their gradients summed);
@@ -368,10 +391,10 @@ def adjoint_gradient(
         st[:6] = states0[pad].T
         st[6:] = np.eye(6).reshape(36, 1)
         ta.pars[:] = runtime_params[:, pad]
-        grid, node_times, interval, weights, at_sample, at_node = _batch_grid(
+        grid, node_weights, at_sample, at_node = _batch_grid(
             times[pad], [arc_nodes[i] for i in pad]
         )
-        n_nodes = node_times.shape[1]
+        n_nodes = node_weights.shape[1]
         limit = _StepLimit(max_steps)
         out = ta.propagate_grid(np.ascontiguousarray(grid.T), callback=limit)[-1]
         if limit.exceeded or out.shape[0] != grid.shape[1]:
@@ -388,17 +411,19 @@ def adjoint_gradient(
         phi_nodes = at_nodes[..., 6:].reshape(lanes, n_nodes, 6, 6)
         jumps = np.einsum("lkij,lki->lkj", phi_samples, kicks[sel])  # Phi_k^T dJ/dx_k
         after = np.cumsum(jumps[:, ::-1], axis=1)[:, ::-1][:, 1:]  # sum over j > k
+        # each node's share of the costate (see _arc_nodes): d_i = sum_k W_ik c_k
+        c = np.matmul(node_weights[:lanes], after)  # (lanes, nodes, 6)
         # Phi is symplectic (Hamilton's equations in canonical (q, p)): Phi^-T = -J Phi J,
-        # so lam = Phi^-T c is (-v_p, v_q) for v = Phi (c_p, -c_q), with no solve
-        c = np.take_along_axis(after, interval[:lanes, :, None], axis=1)  # (lanes, nodes, 6)
+        # so lam = Phi^-T d is (-v_p, v_q) for v = Phi (d_p, -d_q), with no solve
         v = np.einsum("lnij,lnj->lni", phi_nodes, np.concatenate([c[..., 3:], -c[..., :3]], -1))
         lam = np.concatenate([-v[..., 3:], v[..., :3]], axis=-1)
         points = np.concatenate([at_nodes[..., :6], lam], axis=-1).reshape(-1, 12).T
+        node_times = np.take_along_axis(grid, at_node, axis=1)
         extra = {"time": node_times[:lanes].ravel()} if rates.is_time_dependent else {}
         if n_rate_pars:
             extra["pars"] = np.repeat(runtime_params[:n_rate_pars, sel], n_nodes, axis=1)
         values = rates(np.ascontiguousarray(points), batch_parallel=False, **extra)
-        gradient = -np.einsum("plj,lj->pl", values.reshape(-1, lanes, n_nodes), weights[:lanes])
+        gradient = -values.reshape(-1, lanes, n_nodes).sum(axis=2)
         return (
             gradient,
             np.all(np.isfinite(gradient), axis=0) & np.all(np.isfinite(lam), axis=(1, 2)),
