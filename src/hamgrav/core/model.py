@@ -242,7 +242,7 @@ def parameter_rate_function(model: Model):
     """Compiled (cached) rates of the adjoint's parameter accumulator, -(df/dp)^T lam, one per
     runtime parameter: a heyoka ``cfunc`` with inputs (x (6), lam (6)) and the runtime
     parameters as its ``pars``. The gradient of the cost is minus its integral over each arc
-    (quadrature at nodes between samples, :func:`hamgrav.core.propagation.adjoint_gradient`)."""
+    (evaluated at the nodes of :func:`hamgrav.core.propagation.adjoint_gradient`)."""
 
     def build():
         if model.n_system_params == 0:

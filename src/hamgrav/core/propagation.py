@@ -9,7 +9,7 @@ and the integrators come from the one compile cache of :mod:`hamgrav.core.model`
   grid, in SIMD batches over threads, optionally with d state / d runtime-parameters.
 - :func:`adjoint_gradient`: the cost of many arcs and its gradient with respect to the
   runtime parameters, by the adjoint method (the costate from the state transition matrix,
-  the parameter rates by quadrature): no sensitivity to the parameters.
+  the parameter rates integrated at a few nodes per arc): no sensitivity to the parameters.
 - :func:`propagate_scalar`: one trajectory to a time grid (long truth propagations).
 - :func:`propagate_to_contact`: one trajectory until it crosses a closed surface.
 - :func:`state_transition`: d state(t_k) / d state(t_0) along trajectories (first-order
@@ -338,7 +338,7 @@ def adjoint_gradient(
     transposition: the dynamics are Hamilton's equations in canonical coordinates). One
     forward pass of the state and Phi (42 variables, at ``adjoint_tol``, default
     :data:`ADJOINT_TOLERANCE`) over each whole arc gives them at every sample and at the
-    quadrature's nodes between samples (dense output: the steps are not cut at the samples).
+    integral's nodes (dense output: the steps are not cut at the samples).
     The gradient is the integral of (df/dp)^T lam: (df/dp)^T Phi^-T, smooth over the arc,
     is interpolated on segments of it (:func:`_arc_nodes`), which leaves one evaluation of
     :func:`hamgrav.core.model.parameter_rate_function` (one reverse sweep of lam . f) per
