@@ -250,6 +250,11 @@ def test_fit_share_weighs_one_kind_of_arcs_as_a_set(small_arcs, tmp_path):
         refused = runner.invoke(app, [*args, "--share", bad])
         assert refused.exit_code == 2, (bad, refused.output)
         assert message in " ".join(refused.output.split()), (bad, refused.output)
+    # a choice by cross-validation is refused before any arc is propagated
+    chosen = runner.invoke(app, [*args, "--kaula", "cv", "--share", "descent=0.2"])
+    assert chosen.exit_code == 2
+    assert "--share and --kaula cv do not go together" in " ".join(chosen.output.split())
+    assert "arcs weigh" not in chosen.output  # no weights were formed
 
 
 def test_fit_kaula_cv_and_the_truth_scan_refused(arcs_file, tmp_path):

@@ -1081,6 +1081,13 @@ def _share_weights(estimator, arcs, arcs_file: Path, kind: str, share: float):
 
     from .fit.weights import share_weights
 
+    choices = estimator.choices()
+    if choices:
+        chosen = {"degree": "--model sh:auto", "kaula": "--kaula cv", "harmonic": "--harmonic cv"}
+        raise InputError(
+            f"--share and {' and '.join(chosen[c] for c in choices)} do not go together: the "
+            "cross-validation scores unweighted arcs; give the value itself or leave out --share"
+        )
     kinds = sorted(set(arcs.trajectory_kind))
     in_set = np.array([arcs.trajectory_kind[t] == kind for t in arcs.trajectory])
     if not in_set.any() or in_set.all():

@@ -99,7 +99,7 @@ def long_arcs(synthetic_truth):
     interpolation, whose ends fall between samples)."""
     from hamgrav.sim.tracking import OrbitFamily, TrackingConfig, simulate_orbits
 
-    families = [OrbitFamily(1.3, 20.0), OrbitFamily(2.0, 45.0)]
+    families = [OrbitFamily(1.3, 20.0), OrbitFamily(2.0, 45.0), OrbitFamily(1.6, 150.0)]
     tracking = TrackingConfig(arcs_per_orbit=2, cadence_s=300.0, window_spin_periods=2.0)
     return simulate_orbits(synthetic_truth, families, tracking, seed=3)
 
@@ -120,6 +120,35 @@ def test_long_arcs_are_interpolated_on_segments(long_arcs, network, monkeypatch)
     assert np.abs(coarse - reference).max() > 1e-7 * np.abs(reference).max()
 
 
+@pytest.mark.parametrize("degree", [8, 16])
+def test_high_degree_sh_on_long_arcs(long_arcs, synthetic_truth, degree):
+    """SH terms of high degree, whose rates vary along the track faster than low degrees',
+    on arcs over several segments, prograde and retrograde."""
+    sh = SphericalHarmonics(degree, synthetic_truth.body.brillouin_radius)
+    theta = 1e-3 * np.random.default_rng(0).standard_normal(sh.n_params)
+    _agree(ArcProblem(Model((PointMass(),), sh), long_arcs), theta)
+
+
+def test_the_motion_rate_is_the_fastest_of_spin_orbit_and_track():
+    """Circular equatorial orbits of radius r (canonical: n = r^-3/2, spin 1), in the
+    rotating frame: prograde, the track moves at |n - 1| and the rate is max(1, n);
+    retrograde, the track moves at n + 1, faster than either."""
+    t = np.linspace(0.0, 0.3, 7)
+
+    def circle(r, sense):
+        n = r**-1.5
+        angle = (sense * n - 1.0) * t  # inertial phase minus the spin's
+        q = np.stack([r * np.cos(angle), r * np.sin(angle), 0 * t], axis=-1)
+        v = np.stack([-r * np.sin(angle), r * np.cos(angle), 0 * t], axis=-1) * (sense * n - 1)
+        p = v + np.stack([-q[:, 1], q[:, 0], 0 * t], axis=-1)  # p = v + z x q
+        return np.concatenate([q, p], axis=-1)
+
+    states = np.stack([circle(2.0, 1), circle(0.8, 1), circle(2.0, -1), circle(0.8, -1)])
+    n_far, n_near = 2.0**-1.5, 0.8**-1.5
+    expected = [1.0, n_near, n_far + 1, n_near + 1]
+    np.testing.assert_allclose(propagation._motion_rate(states), expected, rtol=1e-12)
+
+
 def test_the_node_weights_integrate_polynomials_exactly():
     """The weights W (node x interval) of an arc integrate, on every interval between its
     samples, any polynomial of degree below the nodes per segment given by its values at
@@ -133,7 +162,7 @@ def test_the_node_weights_integrate_polynomials_exactly():
     for (node_times, weights), t in zip(propagation._arc_nodes(times, states), times, strict=True):
         exact = np.diff(poly.integ()(t))
         np.testing.assert_allclose(poly(node_times) @ weights, exact, rtol=1e-12, atol=1e-14)
-    assert [len(t) for t, _ in propagation._arc_nodes(times, states)] == [n, 9 * n]
+    assert [len(t) for t, _ in propagation._arc_nodes(times, states)] == [2 * n, 21 * n]
 
 
 @pytest.mark.parametrize("keep", [[0, 19, 39], [0, 39], [0]])

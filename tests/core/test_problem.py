@@ -217,8 +217,12 @@ def test_arc_weights_scale_each_arcs_rows(arcs):
     other = ArcProblem(model, arcs, whitening=w, arc_weights=np.array([1, 1, 4.0, 1, 1]))
     assert other.fingerprint([0, 2]) == weighted.fingerprint([0, 2])
     assert other.fingerprint([0, 1]) != weighted.fingerprint([0, 1])
-    for bad in (np.ones(4), np.array([1.0, -1, 1, 1, 1]), np.array([1.0, np.nan, 1, 1, 1])):
-        with pytest.raises(ValueError, match="arc_weights must be 5 finite numbers"):
+    for bad, says in (
+        (np.ones(4), "got shape \\(4,\\)"),
+        (np.array([1.0, -1, 1, 1, 1]), "got -1.0 for arc 1"),
+        (np.array([1.0, 1, np.nan, 1, 1]), "got nan for arc 2"),
+    ):
+        with pytest.raises(ValueError, match=f"arc_weights must be 5 finite numbers.*{says}"):
             ArcProblem(model, arcs, arc_weights=bad)
 
 

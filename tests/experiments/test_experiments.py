@@ -225,6 +225,10 @@ def test_descent_with_both_blocks_tiny(tmp_path):
         (["deep", "--descent-span", "all"], "--descent-span must be one of end, whole"),
         (["deep", "--descent-iterations", "-1"], "--descent-iterations must be at least 0, got -1"),
         (["deep", "--descent-share", "1"], "--descent-share must be 0 \\(unweighted\\) or lie in"),
+        (
+            ["deep", "--descents", "0", "--descent-share", "0.2"],
+            "--descent-share weighs the descents",
+        ),
         (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
         (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
         (["descent", "--altitude-m", "-5"], "--altitude-m must be above 0, got -5.0"),

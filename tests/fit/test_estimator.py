@@ -118,8 +118,9 @@ def test_a_fit_with_arc_weights_minimises_the_weighted_cost(small_arcs, syntheti
     "weights, message",
     [
         (np.ones(3), "one weight per arc"),
-        (-np.ones(9), "finite and >= 0"),
-        (np.zeros(9), "not all zero"),
+        (-np.ones(9), "finite and >= 0: arc 0 has -1.0 \\(9 arcs in all\\)"),
+        (np.r_[np.ones(4), np.nan, np.ones(4)], "finite and >= 0: arc 4 has nan$"),
+        (np.zeros(9), "all zero"),
     ],
 )
 def test_bad_arc_weights_are_refused(small_arcs, synthetic_truth, weights, message):

@@ -319,8 +319,10 @@ def test_a_stage_weighs_its_arcs_as_given(small_arcs, synthetic_truth):
     weights = np.where(np.arange(small_arcs.n_arcs) >= 5, 0.1, 1.0)
     with pytest.raises(InputError, match="one weight per arc of the run"):
         run.add(np.arange(5, 9), arc_weights=weights[5:])
+    with pytest.raises(InputError, match="finite and >= 0"):
+        run.add(np.arange(5, 9), arc_weights=np.where(weights < 1, np.nan, 1.0))
     record = run.add(np.arange(5, 9), arc_weights=weights)
-    assert np.array_equal(record.arcs, np.arange(9))  # the refused call changed nothing
+    assert np.array_equal(record.arcs, np.arange(9))  # the refused calls changed nothing
     problem = ArcProblem(est.model_, small_arcs, arc_weights=weights)
     assert record.result.cost == pytest.approx(problem.cost(record.result.params), rel=1e-12)
     assert est.fitted_.solver["arc_weights"]["n_not_one"] == 4

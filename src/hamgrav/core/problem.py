@@ -318,12 +318,16 @@ class ArcProblem(LeastSquaresProblem):
         self.whitening = whitening
         if arc_weights is not None:
             arc_weights = np.array(arc_weights, dtype=float)
-            if arc_weights.shape != (arcs.n_arcs,) or not np.all(
-                np.isfinite(arc_weights) & (arc_weights >= 0)
-            ):
+            if arc_weights.shape != (arcs.n_arcs,):
                 raise ValueError(
                     f"arc_weights must be {arcs.n_arcs} finite numbers >= 0 (one per arc), got "
                     f"shape {arc_weights.shape}"
+                )
+            bad = np.flatnonzero(~(np.isfinite(arc_weights) & (arc_weights >= 0)))
+            if len(bad):
+                raise ValueError(
+                    f"arc_weights must be {arcs.n_arcs} finite numbers >= 0 (one per arc), got "
+                    f"{arc_weights[bad[0]]} for arc {bad[0]}"
                 )
             arc_weights.flags.writeable = False
         self.arc_weights = arc_weights

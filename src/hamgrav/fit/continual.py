@@ -99,7 +99,7 @@ class ContinualFit:
         of training. ``solver`` replaces the estimator's (warm) solver for this stage.
         ``arc_weights`` (one per arc of ``arcs``): each arc's weight in this stage's cost
         (:meth:`GravityEstimator.fit`); a stage without them weighs every arc 1."""
-        if arc_weights is not None:  # checked before the run changes
+        if arc_weights is not None:
             arc_weights = np.asarray(arc_weights, dtype=float)
             if arc_weights.shape != (self.arcs.n_arcs,):
                 raise InputError(
@@ -109,11 +109,13 @@ class ContinualFit:
         estimator = self.estimator
         k = len(self.records)
         new = np.asarray(new, dtype=int)
+        # the run's arcs change only once the stage is fitted: a refused or failed stage
+        # leaves the run as it was
+        held_out = self._held_out
         if validate and estimator.holdout_fraction > 0:
             _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
-            self._held_out = np.union1d(self._held_out, new[val])
-        self._seen = np.concatenate([self._seen, new])
-        seen, held_out = self._seen, self._held_out
+            held_out = np.union1d(held_out, new[val])
+        seen = np.concatenate([self._seen, new])
         # without validation the fit sees only its training arcs (so it has none to hold out)
         fitted = seen if validate else seen[~np.isin(seen, held_out)]
         subset = self.arcs.subset(fitted)
@@ -144,6 +146,7 @@ class ContinualFit:
             # the previous stage's model does not carry the new arcs: restart this stage
             warm = False
             estimator.fit(subset, validation=local_val, solver=solver, arc_weights=arc_weights)
+        self._seen, self._held_out = seen, held_out
         relative = estimator.diagnostics_.get("relative_cost")
         if relative is not None and not np.isfinite(relative):
             relative = None  # no correction costs nothing on these arcs: nothing to compare

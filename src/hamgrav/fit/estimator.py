@@ -1363,8 +1363,14 @@ def _checked_arc_weights(arc_weights, arcs: Arcs) -> np.ndarray | None:
         raise InputError(
             f"arc_weights has shape {weights.shape}; give one weight per arc ({arcs.n_arcs},)"
         )
-    if not np.all(np.isfinite(weights) & (weights >= 0)) or not weights.any():
-        raise InputError("arc_weights must be finite and >= 0, and not all zero")
+    bad = np.flatnonzero(~(np.isfinite(weights) & (weights >= 0)))
+    if len(bad):
+        raise InputError(
+            f"arc_weights must be finite and >= 0: arc {bad[0]} has {weights[bad[0]]}"
+            + (f" ({len(bad)} arcs in all)" if len(bad) > 1 else "")
+        )
+    if not weights.any():
+        raise InputError("arc_weights are all zero: at least one arc must weigh in the fit")
     return weights
 
 
