@@ -228,6 +228,9 @@ ADJOINT_SEGMENT_NODES = 8
 #: 1e-10 (networks) and 6e-11 (SH of degree 3-24), as the quadrature interval by interval
 #: between samples that this replaced did.
 ADJOINT_SEGMENT_PHASE = 0.1
+#: Node weights (floats) formed for all arcs at once before the costate pass; beyond this
+#: (many long arcs of many samples) they are formed batch by batch (64 MB).
+_NODE_WEIGHTS_AT_ONCE = 8_000_000
 
 
 def _lagrange_in_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -263,6 +266,13 @@ def _motion_rate(states: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(rate), np.maximum(1.0, rate), 1.0)
 
 
+def _segment_counts(times: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """Segments (n,) of each arc's interpolation (:func:`_arc_nodes`)."""
+    span = times[:, -1] - times[:, 0]
+    rate = _motion_rate(states)
+    return np.maximum(np.ceil(span * rate / ADJOINT_SEGMENT_PHASE), 1).astype(int)
+
+
 def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
     """The nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states`` (n, m, 6)) for
     the integral of the parameter rates, and the weights that fold the costate into them.
@@ -282,9 +292,8 @@ def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
     Returns, per arc, (node times (K,), weights (K, m - 1): d = weights @ c)."""
     n_nodes = ADJOINT_SEGMENT_NODES
     unit_nodes, basis = _lagrange_in_legendre(n_nodes)
-    rate = _motion_rate(states)
     start, span = times[:, 0], times[:, -1] - times[:, 0]
-    segments = np.maximum(np.ceil(span * rate / ADJOINT_SEGMENT_PHASE), 1).astype(int)
+    segments = _segment_counts(times, states)
     out: list = [None] * len(times)
     for count in np.unique(segments):
         arcs = np.flatnonzero(segments == count)
@@ -392,6 +401,16 @@ def adjoint_gradient(
     lock = threading.Lock()
     rates = parameter_rate_function(model)
     n_rate_pars = rates.nparams  # a cfunc counts parameters up to the last one it uses
+    # the nodes of all arcs at once (numpy's cost is per call, not per arc) when their
+    # weights (nodes x intervals per arc) are small; otherwise batch by batch, as they run
+    arc_nodes: list | None = None
+    if n_m > 1 and forward.ok.any():
+        good = np.flatnonzero(forward.ok)
+        segments = _segment_counts(times[good], forward.states[good])
+        if segments.sum() * ADJOINT_SEGMENT_NODES * (n_m - 1) <= _NODE_WEIGHTS_AT_ONCE:
+            arc_nodes = [None] * n
+            for i, nodes in zip(good, _arc_nodes(times[good], forward.states[good]), strict=True):
+                arc_nodes[i] = nodes
 
     def gradient_of(ta, sel: np.ndarray):
         """(the lanes' gradients (n_par, len(sel)), which lanes ended well, whether the step
@@ -403,9 +422,10 @@ def adjoint_gradient(
         st[:6] = states0[pad].T
         st[6:] = np.eye(6).reshape(36, 1)
         ta.pars[:] = runtime_params[:, pad]
-        # each batch's nodes formed as it runs: the weights (nodes x intervals) of one batch
-        # at a time, whatever the number of arcs
-        nodes = _arc_nodes(times[sel], forward.states[sel])
+        if arc_nodes is None:
+            nodes = _arc_nodes(times[sel], forward.states[sel])
+        else:
+            nodes = [arc_nodes[i] for i in sel]
         grid, node_weights, at_sample, at_node = _batch_grid(
             times[pad], nodes + [nodes[-1]] * (width - lanes)
         )
