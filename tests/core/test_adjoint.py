@@ -129,6 +129,17 @@ def test_high_degree_sh_on_long_arcs(long_arcs, synthetic_truth, degree):
     _agree(ArcProblem(Model((PointMass(),), sh), long_arcs), theta)
 
 
+def test_nodes_formed_batch_by_batch_give_the_same_gradient(long_arcs, network, monkeypatch):
+    """Beyond the budget of node weights formed at once, each batch forms its own: the same
+    numbers."""
+    model, theta = network
+    at_once = _adjoint(model, long_arcs, theta, threads=1)
+    monkeypatch.setattr(propagation, "_NODE_WEIGHTS_AT_ONCE", 0)
+    by_batch = _adjoint(model, long_arcs, theta, threads=1)
+    np.testing.assert_array_equal(by_batch.gradient, at_once.gradient)
+    np.testing.assert_array_equal(by_batch.costs, at_once.costs)
+
+
 def test_the_motion_rate_is_the_fastest_of_spin_orbit_and_track():
     """Circular equatorial orbits of radius r (canonical: n = r^-3/2, spin 1), in the
     rotating frame: prograde, the track moves at |n - 1| and the rate is max(1, n);
