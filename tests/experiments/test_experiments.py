@@ -224,7 +224,7 @@ def test_descent_with_both_blocks_tiny(tmp_path):
         (["deep", "--stages", "19"], "--stages must lie between 1 and --orbits (18)"),
         (["deep", "--descent-span", "all"], "--descent-span must be one of end, whole"),
         (["deep", "--descent-iterations", "-1"], "--descent-iterations must be at least 0, got -1"),
-        (["deep", "--descent-share", "1"], "--descent-share must be 0 \\(unweighted\\) or lie in"),
+        (["deep", "--descent-share", "1"], "--descent-share must be 0 (unweighted) or lie in"),
         (
             ["deep", "--descents", "0", "--descent-share", "0.2"],
             "--descent-share weighs the descents",
