@@ -1089,7 +1089,7 @@ def _share_weights(estimator, arcs, arcs_file: Path, kind: str, share: float):
             "cross-validation scores unweighted arcs; give the value itself or leave out --share"
         )
     kinds = sorted(set(arcs.trajectory_kind))
-    in_set = np.array([arcs.trajectory_kind[t] == kind for t in arcs.trajectory])
+    in_set = np.asarray(arcs.trajectory_kind)[arcs.trajectory] == kind
     if not in_set.any() or in_set.all():
         raise InputError(
             f"--share {kind}={share:g}: arcs {arcs_file} have "

@@ -273,7 +273,9 @@ def _segment_counts(times: np.ndarray, states: np.ndarray) -> np.ndarray:
     return np.maximum(np.ceil(span * rate / ADJOINT_SEGMENT_PHASE), 1).astype(int)
 
 
-def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
+def _arc_nodes(
+    times: np.ndarray, states: np.ndarray, segments: np.ndarray | None = None
+) -> list[tuple]:
     """The nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states`` (n, m, 6)) for
     the integral of the parameter rates, and the weights that fold the costate into them.
 
@@ -281,8 +283,8 @@ def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
     (:func:`adjoint_gradient`), so the gradient is sum_k integral over [t_k, t_k+1] of
     M(t) c_k, with M(t) = (df/dp)^T Phi(t)^-T smooth over the whole arc (the jumps are all
     in c). The arc is cut into equal segments, as many as it needs for each to span at most
-    :data:`ADJOINT_SEGMENT_PHASE` of the arc's fastest motion (:func:`_motion_rate`), and M
-    is interpolated on each segment at
+    :data:`ADJOINT_SEGMENT_PHASE` of the arc's fastest motion (``segments``, default
+    :func:`_segment_counts`), and M is interpolated on each segment at
     :data:`ADJOINT_SEGMENT_NODES` Gauss-Legendre nodes tau_i (Lagrange polynomials L_i). The
     integral is then sum_i M(tau_i) d_i with d_i = sum_k c_k (integral of L_i over
     [t_k, t_k+1] within the segment): one evaluation of the rates per node, at the costate
@@ -293,7 +295,8 @@ def _arc_nodes(times: np.ndarray, states: np.ndarray) -> list[tuple]:
     n_nodes = ADJOINT_SEGMENT_NODES
     unit_nodes, basis = _lagrange_in_legendre(n_nodes)
     start, span = times[:, 0], times[:, -1] - times[:, 0]
-    segments = _segment_counts(times, states)
+    if segments is None:
+        segments = _segment_counts(times, states)
     out: list = [None] * len(times)
     for count in np.unique(segments):
         arcs = np.flatnonzero(segments == count)
@@ -409,7 +412,8 @@ def adjoint_gradient(
         segments = _segment_counts(times[good], forward.states[good])
         if segments.sum() * ADJOINT_SEGMENT_NODES * (n_m - 1) <= _NODE_WEIGHTS_AT_ONCE:
             arc_nodes = [None] * n
-            for i, nodes in zip(good, _arc_nodes(times[good], forward.states[good]), strict=True):
+            formed = _arc_nodes(times[good], forward.states[good], segments)
+            for i, nodes in zip(good, formed, strict=True):
                 arc_nodes[i] = nodes
 
     def gradient_of(ta, sel: np.ndarray):

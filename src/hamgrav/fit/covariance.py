@@ -345,7 +345,7 @@ def normal_system(
         for k, theta in enumerate(blocks):
             r, a = problem.design(theta, idx)
             r = r.reshape(len(idx), m, 6)
-            wr = r @ w.T  # the residuals as the fit saw them, W r (times sqrt(w_i))
+            wr = r @ w.T  # W r; the fit saw sqrt(w_i) W r
             cost[k] += float(np.sum(arc_w[:, None, None] * wr**2))
             a = a.reshape(len(idx), m, 6, n_b)
             # W^T A_f = W^2 A, sample by sample, times the arc's weight
