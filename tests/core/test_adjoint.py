@@ -108,11 +108,8 @@ def test_long_arcs_are_interpolated_on_segments(long_arcs, network, monkeypatch)
     """On arcs spanning several segments the gradient agrees with the forward one; with
     fewer nodes per segment it does not (the check sees the interpolation)."""
     model, theta = network
-    segments = [
-        len(t) // propagation.ADJOINT_SEGMENT_NODES
-        for t, _ in propagation._arc_nodes(long_arcs.times, long_arcs.states)
-    ]
-    assert min(segments) >= 4
+    counts = propagation._arc_nodes(long_arcs.times, long_arcs.states)[2]
+    assert min(counts // propagation.ADJOINT_SEGMENT_NODES) >= 4
     _agree(ArcProblem(model, long_arcs), theta)
     monkeypatch.setattr(propagation, "ADJOINT_SEGMENT_NODES", 3)
     reference = ArcProblem(model, long_arcs, gradient_method="forward").gradient(theta)[1]
@@ -129,15 +126,20 @@ def test_high_degree_sh_on_long_arcs(long_arcs, synthetic_truth, degree):
     _agree(ArcProblem(Model((PointMass(),), sh), long_arcs), theta)
 
 
-def test_nodes_formed_batch_by_batch_give_the_same_gradient(long_arcs, network, monkeypatch):
-    """Beyond the budget of node weights formed at once, each batch forms its own: the same
-    numbers."""
+def test_blocks_of_one_batch_give_the_same_gradient(long_arcs, network, monkeypatch):
+    """A thread handles a block of several SIMD batches at once (one grid, padded to the
+    block's most nodes); blocks of one batch each give the same numbers, each arc's part to
+    the last bits (the sum over blocks is added in another grouping)."""
     model, theta = network
-    at_once = _adjoint(model, long_arcs, theta, threads=1)
-    monkeypatch.setattr(propagation, "_NODE_WEIGHTS_AT_ONCE", 0)
-    by_batch = _adjoint(model, long_arcs, theta, threads=1)
-    np.testing.assert_array_equal(by_batch.gradient, at_once.gradient)
-    np.testing.assert_array_equal(by_batch.costs, at_once.costs)
+    arcs = long_arcs.subset(np.tile(np.arange(long_arcs.n_arcs), 3))
+    blocks = _adjoint(model, arcs, theta, threads=2)
+    monkeypatch.setattr(propagation, "_BLOCK_BATCHES", 1)
+    batches = _adjoint(model, arcs, theta, threads=2)
+    assert blocks.ok.all() and batches.ok.all()
+    np.testing.assert_array_equal(batches.costs, blocks.costs)
+    assert np.abs(batches.gradient - blocks.gradient).max() <= 1e-14 * np.abs(
+        blocks.gradient
+    ).max()
 
 
 def test_the_motion_rate_is_the_fastest_of_spin_orbit_and_track():
@@ -170,10 +172,12 @@ def test_the_node_weights_integrate_polynomials_exactly():
     states = np.zeros((2, 5, 6))
     states[..., 0] = 2.0  # radius 2: the rate is the spin's, 1
     poly = np.polynomial.Polynomial(np.linspace(1.0, -2.0, n))  # degree n - 1
-    for (node_times, weights), t in zip(propagation._arc_nodes(times, states), times, strict=True):
+    node_times, weights, counts = propagation._arc_nodes(times, states)
+    assert counts.tolist() == [2 * n, 21 * n]
+    assert np.isnan(node_times[0, counts[0] :]).all() and not weights[0, counts[0] :].any()
+    for t, nodes, w, k in zip(times, node_times, weights, counts, strict=True):
         exact = np.diff(poly.integ()(t))
-        np.testing.assert_allclose(poly(node_times) @ weights, exact, rtol=1e-12, atol=1e-14)
-    assert [len(t) for t, _ in propagation._arc_nodes(times, states)] == [2 * n, 21 * n]
+        np.testing.assert_allclose(poly(nodes[:k]) @ w[:k], exact, rtol=1e-12, atol=1e-14)
 
 
 @pytest.mark.parametrize("keep", [[0, 19, 39], [0, 39], [0]])
@@ -211,7 +215,8 @@ def test_sums_do_not_depend_on_threads(small_arcs, network):
 
 
 class _NaNForArc:
-    """The parameter rates, NaN at the nodes of the first arc of every batch."""
+    """The parameter rates, NaN at the nodes of the first arc of every call (of every block
+    of arcs)."""
 
     def __init__(self, rates, n_nodes):
         self.rates, self.n_nodes = rates, n_nodes
@@ -228,14 +233,15 @@ def test_an_arc_whose_costate_pass_fails_is_reported(small_arcs, network, monkey
 
     model, theta = network
     rates = model_module.parameter_rate_function(model)
-    n_nodes = len(propagation._arc_nodes(small_arcs.times[:1], small_arcs.states[:1])[0][0])
+    n_nodes = propagation._arc_nodes(small_arcs.times[:1], small_arcs.states[:1])[2][0]
     monkeypatch.setattr(
         model_module, "parameter_rate_function", lambda m: _NaNForArc(rates, n_nodes)
     )
+    monkeypatch.setattr(propagation, "_BLOCK_BATCHES", 1)  # several blocks: one batch each
     run = _adjoint(model, small_arcs, theta)
     width = int(hy.recommended_simd_size())
     failed = np.zeros(small_arcs.n_arcs, bool)
-    failed[::width] = True  # the first arc of every SIMD batch
+    failed[::width] = True  # the first arc of every block
     assert np.array_equal(~run.ok, failed)
     assert np.isnan(run.costs[failed]).all() and np.isfinite(run.costs[~failed]).all()
     assert np.isfinite(run.gradient).all()
@@ -286,5 +292,5 @@ def test_an_arcs_gradient_does_not_depend_on_the_other_arcs(small_arcs, long_arc
     )
     expected = alone_a.gradient + alone_b.gradient
     assert np.abs(together.gradient - expected).max() <= 1e-13 * np.abs(expected).max()
-    nodes = [len(propagation._arc_nodes(x.times, x.states)[0][0]) for x in (a, b)]
+    nodes = [propagation._arc_nodes(x.times, x.states)[2][0] for x in (a, b)]
     assert nodes[1] > nodes[0]  # the sparse arc does need more nodes: the batch pads

@@ -18,6 +18,7 @@ and the integrators come from the one compile cache of :mod:`hamgrav.core.model`
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -42,22 +43,19 @@ __all__ = [
 ]
 
 
-class _StepLimit:
-    """Step callback stopping a propagation after ``limit`` Taylor steps: a well-posed arc takes
-    a few steps, so a runaway count means the parameters make the dynamics stiff or singular
-    (a solver then rejects the trial instead of waiting on it)."""
-
-    def __init__(self, limit: int | None):
-        self.limit = limit
-        self.steps = 0
-        self.exceeded = False
-
-    def __call__(self, ta) -> bool:
-        self.steps += 1
-        if self.limit is not None and self.steps > self.limit:
-            self.exceeded = True
-            return False
-        return True
+def _propagate_grid(ta, grid: np.ndarray, max_steps: int | None) -> tuple[np.ndarray, bool]:
+    """``ta.propagate_grid(grid)``, stopped after ``max_steps`` Taylor steps (None: no cap):
+    a well-posed arc takes a few steps, so a runaway count means the parameters make the
+    dynamics stiff or singular (a solver then rejects the trial instead of waiting on it).
+    Returns (the states at the grid, whether the cap stopped it). The cap is heyoka's own: a
+    Python step callback would take the GIL at every step and serialise the threads that
+    share out the batches."""
+    res = ta.propagate_grid(grid, max_steps=0 if max_steps is None else int(max_steps))
+    if isinstance(res[0], hy.taylor_outcome):  # a scalar integrator: (outcome, ..., states)
+        exceeded = res[0] == hy.taylor_outcome.step_limit
+    else:  # a batch: each lane's outcome
+        exceeded = any(o[0] == hy.taylor_outcome.step_limit for o in ta.propagate_res)
+    return res[-1], bool(exceeded)
 
 
 @dataclass(frozen=True)
@@ -151,10 +149,10 @@ def propagate_batch(
             st[:6] = states0[pad].T
             if n_sys:
                 ta.pars[:] = runtime_params[:, pad]
-            limit = _StepLimit(max_steps)
-            res = ta.propagate_grid(np.ascontiguousarray(times[pad].T), callback=limit)
-            grid_states = res[-1]  # (m reached, n_state, width)
-            if limit.exceeded:
+            grid_states, stopped = _propagate_grid(  # (m, n_state, width)
+                ta, np.ascontiguousarray(times[pad].T), max_steps
+            )
+            if stopped:
                 exceeded[sel] = True
                 continue
             if grid_states.shape[0] != n_m:
@@ -228,27 +226,38 @@ ADJOINT_SEGMENT_NODES = 8
 #: 1e-10 (networks) and 6e-11 (SH of degree 3-24), as the quadrature interval by interval
 #: between samples that this replaced did.
 ADJOINT_SEGMENT_PHASE = 0.1
-#: Node weights (floats) formed for all arcs at once before the costate pass; beyond this
-#: (many long arcs of many samples) they are formed batch by batch (64 MB).
-_NODE_WEIGHTS_AT_ONCE = 8_000_000
+#: SIMD batches of arcs whose costate passes one thread runs and whose samples, nodes and
+#: parameter rates it then handles together: numpy's cost is per call, not per arc, and
+#: the integrators run while other blocks' numpy holds the GIL.
+_BLOCK_BATCHES = 4
+#: Parameter rates (floats: runtime parameters x nodes) held per block; a block has fewer
+#: batches when its nodes would need more (32 MB).
+_BLOCK_RATE_FLOATS = 4_000_000
 
 
+@functools.lru_cache(maxsize=4)
 def _lagrange_in_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
     """(the n Gauss-Legendre nodes u_i on [-1, 1], B (n, n)): the Lagrange polynomial of node
     i is L_i(u) = sum_k B[i, k] P_k(u) (the quadrature integrates P_k P_l exactly for
     k + l <= 2n - 1, so the interpolant at its nodes has these Legendre coefficients)."""
     nodes, weights = np.polynomial.legendre.leggauss(n)
     legendre = np.polynomial.legendre.legvander(nodes, n - 1)  # P_k(u_i)
-    return nodes, weights[:, None] * (2 * np.arange(n) + 1) / 2 * legendre
+    basis = weights[:, None] * (2 * np.arange(n) + 1) / 2 * legendre
+    nodes.setflags(write=False)  # cached: shared by every call
+    basis.setflags(write=False)
+    return nodes, basis
 
 
 def _legendre_integrals(u: np.ndarray, n: int) -> np.ndarray:
-    """F_k(u) = integral of P_k from -1 to u, k < n, shape (*u.shape, n)."""
-    p = np.polynomial.legendre.legvander(u, n)
-    out = np.empty((*np.shape(u), n))
-    out[..., 0] = u + 1.0
-    k = np.arange(1, n)
-    out[..., 1:] = (p[..., 2:] - p[..., :-2]) / (2 * k + 1)
+    """F_k(u) = integral of P_k from -1 to u, k < n, shape (n, *u.shape)."""
+    p = np.empty((n + 1, *np.shape(u)))  # P_k(u) by Bonnet's recursion
+    p[0], p[1] = 1.0, u
+    for k in range(1, n):
+        p[k + 1] = ((2 * k + 1) * u * p[k] - k * p[k - 1]) / (k + 1)
+    out = np.empty((n, *np.shape(u)))
+    out[0] = u + 1.0
+    for k in range(1, n):
+        out[k] = (p[k + 1] - p[k - 1]) / (2 * k + 1)
     return out
 
 
@@ -275,7 +284,7 @@ def _segment_counts(times: np.ndarray, states: np.ndarray) -> np.ndarray:
 
 def _arc_nodes(
     times: np.ndarray, states: np.ndarray, segments: np.ndarray | None = None
-) -> list[tuple]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states`` (n, m, 6)) for
     the integral of the parameter rates, and the weights that fold the costate into them.
 
@@ -291,53 +300,57 @@ def _arc_nodes(
     Phi(tau_i)^-T d_i, whatever the number of samples. An arc's nodes depend on that arc
     alone.
 
-    Returns, per arc, (node times (K,), weights (K, m - 1): d = weights @ c)."""
+    Returns (node times (n, K), weights (n, K, m - 1): d = weights @ c, each arc's node count
+    k (n,)), K the largest k: an arc's nodes are its first k, the rest NaN with weight 0."""
     n_nodes = ADJOINT_SEGMENT_NODES
     unit_nodes, basis = _lagrange_in_legendre(n_nodes)
     start, span = times[:, 0], times[:, -1] - times[:, 0]
     if segments is None:
         segments = _segment_counts(times, states)
-    out: list = [None] * len(times)
-    for count in np.unique(segments):
-        arcs = np.flatnonzero(segments == count)
-        width = span[arcs] / count  # (a,)
-        left = start[arcs][:, None] + width[:, None] * np.arange(count)  # (a, S)
-        # the samples in each segment's variable u in [-1, 1], clipped to the segment
-        u = 2.0 * (times[arcs][:, None, :] - left[..., None]) / width[:, None, None] - 1.0
-        integrals = _legendre_integrals(np.clip(u, -1.0, 1.0), n_nodes)  # (a, S, m, n)
-        within = np.diff(integrals, axis=2)  # (a, S, m - 1, n): each interval's part
-        weights = 0.5 * width[:, None, None, None] * np.einsum("in,askn->asik", basis, within)
-        weights = weights.reshape(len(arcs), count * n_nodes, -1)
-        node_times = (left[..., None] + 0.5 * width[:, None, None] * (unit_nodes + 1.0)).reshape(
-            len(arcs), -1
-        )
-        for row, arc in enumerate(arcs):
-            out[arc] = (node_times[row], weights[row])
-    return out
+    counts = segments * n_nodes
+    n, n_m = times.shape
+    # every arc cut into as many segments as the most any needs; an arc's segments beyond its
+    # own count get no nodes (NaN) and no weight
+    width = span / segments  # (n,)
+    index = np.arange(segments.max())
+    left = start[:, None] + width[:, None] * index  # (n, S)
+    # the samples in each segment's variable u in [-1, 1], clipped to the segment
+    u = 2.0 * (times[:, None, :] - left[..., None]) / width[:, None, None] - 1.0
+    integrals = _legendre_integrals(np.clip(u, -1.0, 1.0), n_nodes)  # (n_nodes, n, S, m)
+    within = np.diff(integrals, axis=3)  # each interval's part
+    own = index < segments[:, None]  # (n, S)
+    weights = (
+        np.einsum("ij,jnsk->nsik", basis, within)
+        * np.where(own, 0.5 * width[:, None], 0.0)[..., None, None]
+    )
+    node_times = left[..., None] + 0.5 * width[:, None, None] * (unit_nodes + 1.0)
+    node_times[~own] = np.nan
+    weights = weights.reshape(n, -1, n_m - 1)
+    node_times = node_times.reshape(n, -1)
+    return node_times, weights, counts
 
 
-def _batch_grid(times: np.ndarray, arc_nodes: list) -> tuple:
-    """The grid of one SIMD batch (``times`` (w, m) of its lanes' arcs and their
-    :func:`_arc_nodes`): every lane's samples and nodes in time order, the lanes with fewer
-    nodes padded with nodes of weight 0 apart from their samples and nodes, so that all
-    lanes share one grid length. Returns (grid (w, m + k), node weights (w, k, m - 1), the
-    samples' and the nodes' places in the grid (w, m), (w, k))."""
-    w, m = times.shape
-    k = max(len(t) for t, _ in arc_nodes)
-    node_times, weights = np.empty((w, k)), np.zeros((w, k, m - 1))
-    for lane, (t, wt) in enumerate(arc_nodes):
-        n = len(t)
-        node_times[lane, :n], weights[lane, :n] = t, wt
-        if n < k:  # inside the widest gap between the lane's samples and nodes: apart from all
-            points = np.sort(np.concatenate([times[lane], t]))
-            gap = int(np.argmax(np.diff(points)))
-            fraction = np.arange(1, k - n + 1) / (k - n + 1)
-            node_times[lane, n:] = points[gap] + (points[gap + 1] - points[gap]) * fraction
+def _block_grid(times: np.ndarray, node_times: np.ndarray, counts: np.ndarray) -> tuple:
+    """The grid of a block's lanes (``times`` (w, m) and their :func:`_arc_nodes` node times
+    (w, K) and counts (w,)): every lane's samples and nodes in time order, a lane's missing
+    nodes (NaN) placed evenly inside the widest gap between its samples and nodes, apart
+    from all (heyoka's grid is strictly increasing), so that all lanes share one grid length.
+    Returns (grid (w, m + K), the samples' and the nodes' places in the grid (w, m),
+    (w, K))."""
+    m, k = times.shape[1], node_times.shape[1]
+    missing = np.isnan(node_times)
+    # with the missing nodes at the last sample, the widest gap is between real points
+    points = np.sort(np.concatenate([times, np.where(missing, times[:, -1:], node_times)], 1), 1)
+    gap = np.argmax(np.diff(points, axis=1), axis=1)[:, None]
+    low = np.take_along_axis(points, gap, axis=1)
+    high = np.take_along_axis(points, gap + 1, axis=1)
+    fraction = (np.arange(k) - counts[:, None] + 1) / (k - counts[:, None] + 1)
+    nodes = np.where(missing, low + (high - low) * fraction, node_times)
     # a sample sorts before a node at the same time (stable)
-    order = np.argsort(np.concatenate([times, node_times], axis=1), axis=1, kind="stable")
-    grid = np.take_along_axis(np.concatenate([times, node_times], axis=1), order, axis=1)
+    joined = np.concatenate([times, nodes], axis=1)
+    order = np.argsort(joined, axis=1, kind="stable")
     place = np.argsort(order, axis=1)
-    return grid, weights, place[:, :m], place[:, m:]
+    return np.take_along_axis(joined, order, axis=1), place[:, :m], place[:, m:]
 
 
 def adjoint_gradient(
@@ -372,8 +385,11 @@ def adjoint_gradient(
     is interpolated on segments of it (:func:`_arc_nodes`), which leaves one evaluation of
     :func:`hamgrav.core.model.parameter_rate_function` (one reverse sweep of lam . f) per
     node, a few per radian of motion, not per interval between samples.
-    Memory: the states, and per thread one SIMD batch's 42 variables at the samples and
-    nodes and their rates (n_system_params per node); never a sensitivity per sample. The
+    The arcs go in blocks of up to :data:`_BLOCK_BATCHES` SIMD batches, each handled whole by
+    one thread (the threads take the next block as they finish). Memory: the states, and
+    per thread one block's 42 variables at the samples and nodes and their rates
+    (n_system_params per node, at most :data:`_BLOCK_RATE_FLOATS` unless one batch needs
+    more); never a sensitivity per sample. The
     first ``n_shared`` runtime parameters are shared by all arcs (their gradients summed);
     the rest are per arc (returned in ``per_arc``)."""
     from .model import parameter_rate_function
@@ -398,95 +414,106 @@ def adjoint_gradient(
     per_arc = np.zeros((n, n_par - n_shared))
     ok = forward.ok.copy()
     exceeded = forward.exceeded_steps.copy()
-    # each chunk's sum of the shared gradient, added up in a fixed order at the end: the
+    # each block's sum of the shared gradient, added up in block order at the end: the
     # threads finish in any order, and a sum must not depend on it
     partial: dict[int, np.ndarray] = {}
     lock = threading.Lock()
     rates = parameter_rate_function(model)
     n_rate_pars = rates.nparams  # a cfunc counts parameters up to the last one it uses
-    # the nodes of all arcs at once (numpy's cost is per call, not per arc) when their
-    # weights (nodes x intervals per arc) are small; otherwise batch by batch, as they run
-    arc_nodes: list | None = None
-    if n_m > 1 and forward.ok.any():
-        good = np.flatnonzero(forward.ok)
-        segments = _segment_counts(times[good], forward.states[good])
-        if segments.sum() * ADJOINT_SEGMENT_NODES * (n_m - 1) <= _NODE_WEIGHTS_AT_ONCE:
-            arc_nodes = [None] * n
-            formed = _arc_nodes(times[good], forward.states[good], segments)
-            for i, nodes in zip(good, formed, strict=True):
-                arc_nodes[i] = nodes
+    adjoint_tol = ADJOINT_TOLERANCE if adjoint_tol is None else adjoint_tol
+    compiled = compiled_integrators(model, variational=True, wrt="state", tol=adjoint_tol)
+    width = compiled.integrators[0].batch_size
+    pending = np.flatnonzero(forward.ok)
+    segments = np.zeros(n, int)
+    if n_m > 1 and len(pending):
+        segments[pending] = _segment_counts(times[pending], forward.states[pending])
 
-    def gradient_of(ta, sel: np.ndarray):
-        """(the lanes' gradients (n_par, len(sel)), which lanes ended well, whether the step
-        limit stopped them)."""
-        width, lanes = ta.batch_size, len(sel)
-        pad = np.concatenate([sel, np.repeat(sel[-1:], width - lanes)])
-        ta.set_time(times[pad, 0].copy())
-        st = ta.state
-        st[:6] = states0[pad].T
-        st[6:] = np.eye(6).reshape(36, 1)
-        ta.pars[:] = runtime_params[:, pad]
-        if arc_nodes is None:
-            nodes = _arc_nodes(times[sel], forward.states[sel])
-        else:
-            nodes = [arc_nodes[i] for i in sel]
-        grid, node_weights, at_sample, at_node = _batch_grid(
-            times[pad], nodes + [nodes[-1]] * (width - lanes)
+    shared_rate_pars: dict[int, np.ndarray] = {}
+
+    def rate_pars(sel: np.ndarray, counts: np.ndarray) -> np.ndarray:
+        """The rates' parameters at the nodes of the arcs ``sel`` (``counts`` each); when
+        they are all shared, one array per node count, for every block (read only)."""
+        if n_rate_pars > n_shared:
+            return np.repeat(runtime_params[:n_rate_pars, sel], counts, axis=1)
+        total = int(counts.sum())
+        if total not in shared_rate_pars:  # two threads may both form it: the same array
+            shared_rate_pars[total] = np.repeat(runtime_params[:n_rate_pars, sel[:1]], total, 1)
+        return shared_rate_pars[total]
+
+    def block_gradient(ta, sel: np.ndarray):
+        """The gradients (n_par, len(sel)) of the arcs ``sel``, whether each ended well, and
+        whether the step limit stopped it."""
+        n_sel, n_batches = len(sel), -(-len(sel) // width)
+        lanes = np.concatenate([sel, np.repeat(sel[-1:], n_batches * width - n_sel)])
+        node_times, node_weights, counts = _arc_nodes(
+            times[sel], forward.states[sel], segments[sel]
         )
-        n_nodes = node_weights.shape[1]
-        limit = _StepLimit(max_steps)
-        out = ta.propagate_grid(np.ascontiguousarray(grid.T), callback=limit)[-1]
-        if limit.exceeded or out.shape[0] != grid.shape[1]:
-            return None, np.zeros(lanes, bool), limit.exceeded
-        out = out[..., :lanes].transpose(2, 0, 1)  # (lanes, grid, 42)
-
-        def at(places):
-            if (places == places[0]).all():  # one layout for every lane: plain indexing
-                return out[:, places[0]]
-            return np.take_along_axis(out, places[:lanes, :, None], axis=1)
-
-        samples, at_nodes = at(at_sample), at(at_node)
-        phi_samples = samples[..., 6:].reshape(lanes, n_m, 6, 6)
-        phi_nodes = at_nodes[..., 6:].reshape(lanes, n_nodes, 6, 6)
+        pad = lanes.size - n_sel
+        grid, at_sample, at_node = _block_grid(
+            times[lanes],
+            np.concatenate([node_times, np.repeat(node_times[-1:], pad, axis=0)]),
+            np.concatenate([counts, np.repeat(counts[-1:], pad)]),
+        )
+        out = np.empty((n_batches, grid.shape[1], 42, width))
+        stopped = np.zeros(lanes.size, bool)
+        for b in range(n_batches):
+            batch = slice(b * width, (b + 1) * width)
+            ta.set_time(times[lanes[batch], 0].copy())
+            st = ta.state
+            st[:6] = states0[lanes[batch]].T
+            st[6:] = np.eye(6).reshape(36, 1)
+            ta.pars[:] = runtime_params[:, lanes[batch]]
+            out[b], stopped[batch] = _propagate_grid(
+                ta, np.ascontiguousarray(grid[batch].T), max_steps
+            )
+        # the lanes' states and transition matrices at the grid, one row per lane and point
+        n_grid, n_nodes = grid.shape[1], node_times.shape[1]
+        rows = out.transpose(0, 3, 1, 2).reshape(-1, 42)
+        start = n_grid * np.arange(n_sel)[:, None]
+        samples = rows[start + at_sample[:n_sel]]  # (arcs, samples, 42)
+        at_nodes = rows[start + at_node[:n_sel]]  # (arcs, nodes, 42)
+        phi_samples = samples[..., 6:].reshape(n_sel, n_m, 6, 6)
+        phi_nodes = at_nodes[..., 6:].reshape(n_sel, n_nodes, 6, 6)
         jumps = np.einsum("lkij,lki->lkj", phi_samples, kicks[sel])  # Phi_k^T dJ/dx_k
         after = np.cumsum(jumps[:, ::-1], axis=1)[:, ::-1][:, 1:]  # sum over j > k
         # each node's share of the costate (see _arc_nodes): d_i = sum_k W_ik c_k
-        c = np.matmul(node_weights[:lanes], after)  # (lanes, nodes, 6)
+        c = np.matmul(node_weights, after)  # (arcs, nodes, 6)
         # Phi is symplectic (Hamilton's equations in canonical (q, p)): Phi^-T = -J Phi J,
         # so lam = Phi^-T d is (-v_p, v_q) for v = Phi (d_p, -d_q), with no solve
         v = np.einsum("lnij,lnj->lni", phi_nodes, np.concatenate([c[..., 3:], -c[..., :3]], -1))
         lam = np.concatenate([-v[..., 3:], v[..., :3]], axis=-1)
-        points = np.concatenate([at_nodes[..., :6], lam], axis=-1).reshape(-1, 12).T
-        node_times = np.take_along_axis(grid, at_node, axis=1)
-        extra = {"time": node_times[:lanes].ravel()} if rates.is_time_dependent else {}
+        # the rates at each arc's own nodes only (not at a lane's padding)
+        real = np.arange(n_nodes) < counts[:, None]
+        points = np.concatenate([at_nodes[..., :6], lam], axis=-1)[real]
+        extra = {"time": node_times[real]} if rates.is_time_dependent else {}
         if n_rate_pars:
-            extra["pars"] = np.repeat(runtime_params[:n_rate_pars, sel], n_nodes, axis=1)
-        values = rates(np.ascontiguousarray(points), batch_parallel=False, **extra)
-        gradient = -values.reshape(-1, lanes, n_nodes).sum(axis=2)
-        return (
-            gradient,
-            np.all(np.isfinite(gradient), axis=0) & np.all(np.isfinite(lam), axis=(1, 2)),
-            False,
-        )
+            extra["pars"] = rate_pars(sel, counts)
+        values = rates(np.ascontiguousarray(points.T), batch_parallel=False, **extra)
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        gradient = -np.add.reduceat(values, first, axis=1)
+        finite = np.all(np.isfinite(gradient), axis=0) & np.all(np.isfinite(lam), axis=(1, 2))
+        return gradient, finite & ~stopped[:n_sel], stopped[:n_sel]
 
-    pending = np.flatnonzero(forward.ok)
-    adjoint_tol = ADJOINT_TOLERANCE if adjoint_tol is None else adjoint_tol
-    compiled = compiled_integrators(model, variational=True, wrt="state", tol=adjoint_tol)
-    width = compiled.integrators[0].batch_size
-    chunks = [pending[i : i + width] for i in range(0, len(pending), width)]
-    if chunks and n_m > 1:
-        n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(chunks)))
+    if len(pending) and n_m > 1:
+        rate_floats = n_par * width * int(segments.max()) * ADJOINT_SEGMENT_NODES  # a batch's
+        arcs_per_block = width * int(np.clip(_BLOCK_RATE_FLOATS // rate_floats, 1, _BLOCK_BATCHES))
+        blocks = [pending[i : i + arcs_per_block] for i in range(0, len(pending), arcs_per_block)]
+        n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(blocks)))
+        queue = iter(range(len(blocks)))
 
         def work(ta, worker):
-            for c in range(worker, len(chunks), n_threads):
-                sel = chunks[c]
-                gradient, good, stopped = gradient_of(ta, sel)
+            while True:
+                with lock:  # the next block not yet taken: threads share out uneven blocks
+                    key = next(queue, None)
+                if key is None:
+                    return
+                sel = blocks[key]
+                gradient, good, stopped = block_gradient(ta, sel)
                 with lock:
                     ok[sel] &= good
                     exceeded[sel] |= stopped
-                    if gradient is not None:
-                        per_arc[sel] = gradient[n_shared:].T
-                        partial[c] = gradient[:n_shared, good].sum(axis=1)
+                    per_arc[sel] = gradient[n_shared:].T
+                    partial[key] = gradient[:n_shared, good].sum(axis=1)
 
         _over_threads(compiled, n_threads, work)
     gradient = np.zeros(n_par)
@@ -631,11 +658,10 @@ def propagate_to_contact(
                 break
             ta.time = prev_t
             ta.state[:] = prev_state
-            limit = _StepLimit(max_steps_per_chunk)
-            res = ta.propagate_grid(times, callback=limit)
+            res = ta.propagate_grid(times, max_steps=max_steps_per_chunk)
             states = res[-1]
             n_ok = len(states)
-            if limit.exceeded:
+            if res[0] == hy.taylor_outcome.step_limit:
                 return Touchdown(False, float(times[max(n_ok - 1, 0)]), prev_state[:3], "diverged")
             finite = np.all(np.isfinite(states), axis=1)
             r = np.linalg.norm(states[:, :3], axis=1)
