@@ -4,13 +4,19 @@ the forward sensitivities (the design matrix contracted with the residuals), and
 equations, on the 112 Itokawa arcs of the paper's descent geometry (16 orbits 1.2-2.0 R_B,
 10-80 deg, 7 arcs of 40 samples at 14 s; a cheap 100-mascon truth). Each figure is the best
 of ``--repeat`` calls after a first call that compiles; the two gradients are compared.
+``--workers N`` also times the adjoint on a LocalCluster of N single-threaded worker processes
+(``hamgrav.fit.distributed``: the arcs split into chunks held by the workers; threads of one
+process share the GIL between heyoka's calls, processes do not), and ``--copies K`` repeats
+the 112 arcs K times.
 
-    python bench/gradient.py [--hidden 24,24 16,16] [--adjoint-tol 1e-8] [--repeat 3] [--json]
+    python bench/gradient.py [--hidden 24,24 16,16] [--adjoint-tol 1e-8] [--repeat 3]
+                             [--workers 2] [--copies 4] [--json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import time
@@ -24,6 +30,8 @@ from hamgrav.core import propagation
 from hamgrav.core.model import Model
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.terms import NeuralPotential, PointMass
+from hamgrav.experiments.runner import dask_client
+from hamgrav.fit.distributed import DistributedArcProblem
 from hamgrav.sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
 
 
@@ -37,48 +45,62 @@ def _best(call, repeat: int) -> float:
     return best
 
 
+def _network_row(arcs, hidden: str, args, client) -> dict:
+    """The figures of one network shape ("24,24")."""
+    term = NeuralPotential(tuple(int(h) for h in hidden.split(",")))
+    model = Model((PointMass(),), term)
+    theta = term.initial_params(0)
+    adjoint = ArcProblem(model, arcs, gradient_method="adjoint")
+    forward = ArcProblem(model, arcs, gradient_method="forward")
+    g_adj = adjoint.gradient(theta)[1]
+    g_fwd = forward.gradient(theta)[1]
+    times = {
+        "adjoint": _best(lambda: adjoint.gradient(theta), args.repeat),
+        "forward": _best(lambda: forward.gradient(theta), args.repeat),
+        "normal_equations": _best(lambda: forward.normal_equations(theta), args.repeat),
+    }
+    row = {
+        "hidden": hidden,
+        "n_params": term.n_params,
+        "n_arcs": arcs.n_arcs,
+        "adjoint_tol": args.adjoint_tol,
+        "gradient_relative_difference": float(np.abs(g_adj - g_fwd).max() / np.abs(g_fwd).max()),
+        "simd_batch": hy.recommended_simd_size(),
+        "threads": os.cpu_count(),
+    }
+    if client is not None:
+        cluster = DistributedArcProblem(model, arcs, client=client, gradient_method="adjoint")
+        g_cluster = cluster.gradient(theta)[1]
+        times["cluster_adjoint"] = _best(lambda: cluster.gradient(theta), args.repeat)
+        row["workers"] = args.workers
+        row["cluster_relative_difference"] = float(
+            np.abs(g_cluster - g_adj).max() / np.abs(g_adj).max()
+        )
+    row.update({f"{k}_arcs_per_s": round(arcs.n_arcs / v, 1) for k, v in times.items()})
+    return row
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hidden", nargs="+", default=["24,24", "16,16"])
     parser.add_argument("--adjoint-tol", type=float, default=propagation.ADJOINT_TOLERANCE)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--json", action="store_true", help="one JSON object per network")
+    parser.add_argument("--workers", type=int, default=0, help="LocalCluster worker processes")
+    parser.add_argument("--copies", type=int, default=1, help="the 112 arcs, repeated")
     args = parser.parse_args()
+    if args.workers and args.adjoint_tol != propagation.ADJOINT_TOLERANCE:
+        parser.error("--adjoint-tol applies in this process only, not with --workers")
     propagation.ADJOINT_TOLERANCE = args.adjoint_tol
     truth = build_truth(load_body("itokawa"), "head-tail", n_mascons=100, seed=0)
     arcs = simulate_orbits(
         truth, orbit_grid(16, (1.2, 2.0), (10.0, 80.0)), TrackingConfig(arcs_per_orbit=7), seed=0
     )
-    rows = []
-    for hidden in args.hidden:
-        term = NeuralPotential(tuple(int(h) for h in hidden.split(",")))
-        model = Model((PointMass(),), term)
-        theta = term.initial_params(0)
-        adjoint = ArcProblem(model, arcs, gradient_method="adjoint")
-        forward = ArcProblem(model, arcs, gradient_method="forward")
-        g_adj = adjoint.gradient(theta)[1]
-        g_fwd = forward.gradient(theta)[1]
-        times = {
-            "adjoint": _best(lambda p=adjoint, t=theta: p.gradient(t), args.repeat),
-            "forward": _best(lambda p=forward, t=theta: p.gradient(t), args.repeat),
-            "normal_equations": _best(
-                lambda p=forward, t=theta: p.normal_equations(t), args.repeat
-            ),
-        }
-        row = {
-            "hidden": hidden,
-            "n_params": term.n_params,
-            "n_arcs": arcs.n_arcs,
-            "adjoint_tol": args.adjoint_tol,
-            **{f"{k}_arcs_per_s": round(arcs.n_arcs / v, 1) for k, v in times.items()},
-            "gradient_relative_difference": float(
-                np.abs(g_adj - g_fwd).max() / np.abs(g_fwd).max()
-            ),
-            "simd_batch": hy.recommended_simd_size(),
-            "threads": os.cpu_count(),
-        }
-        rows.append(row)
-        if args.json:
+    arcs = arcs.subset(np.tile(np.arange(arcs.n_arcs), args.copies))
+    with dask_client(args.workers) if args.workers else contextlib.nullcontext() as client:
+        rows = [_network_row(arcs, hidden, args, client) for hidden in args.hidden]
+    if args.json:
+        for row in rows:
             print(json.dumps(row), flush=True)
     if not args.json:
         print(
@@ -86,17 +108,23 @@ def main() -> None:
             f"{hy.recommended_simd_size()}, {os.cpu_count()} threads, adjoint tolerance "
             f"{args.adjoint_tol:g}; arcs/s (best of {args.repeat})"
         )
+        cluster = f"adjoint x{args.workers}" if args.workers else ""
         print(
-            f"{'network':<9} {'params':>7} {'adjoint':>9} {'forward':>9} {'A^T A':>9} "
-            f"{'adj/fwd':>8} {'|g_adj - g_fwd|':>16}"
+            f"{'network':<9} {'params':>7} {'adjoint':>9} {cluster:>11} {'forward':>9} "
+            f"{'A^T A':>9} {'adj/fwd':>8} {'|g_adj - g_fwd|':>16}"
         )
         for r in rows:
+            on_cluster = f"{r['cluster_adjoint_arcs_per_s']:>11.0f}" if args.workers else " " * 11
             print(
                 f"{r['hidden']:<9} {r['n_params']:>7} {r['adjoint_arcs_per_s']:>9.0f} "
-                f"{r['forward_arcs_per_s']:>9.0f} {r['normal_equations_arcs_per_s']:>9.0f} "
+                f"{on_cluster} {r['forward_arcs_per_s']:>9.0f} "
+                f"{r['normal_equations_arcs_per_s']:>9.0f} "
                 f"{r['adjoint_arcs_per_s'] / r['forward_arcs_per_s']:>8.2f} "
                 f"{r['gradient_relative_difference']:>16.1e}"
             )
+        if args.workers:
+            worst = max(r["cluster_relative_difference"] for r in rows)
+            print(f"the cluster's gradient against the in-process one: {worst:.1e} (relative)")
 
 
 if __name__ == "__main__":

@@ -429,6 +429,7 @@ def adjoint_gradient(
         segments[pending] = _segment_counts(times[pending], forward.states[pending])
 
     shared_rate_pars: dict[int, np.ndarray] = {}
+    identity = np.eye(6).reshape(36, 1)
 
     def rate_pars(sel: np.ndarray, counts: np.ndarray) -> np.ndarray:
         """The rates' parameters at the nodes of the arcs ``sel`` (``counts`` each); when
@@ -456,13 +457,15 @@ def adjoint_gradient(
         )
         out = np.empty((n_batches, grid.shape[1], 42, width))
         stopped = np.zeros(lanes.size, bool)
+        pars = ta.pars
+        pars[:n_shared] = runtime_params[:n_shared, sel[:1]]  # the same for every arc
         for b in range(n_batches):
             batch = slice(b * width, (b + 1) * width)
-            ta.set_time(times[lanes[batch], 0].copy())
+            ta.set_time(times[lanes[batch], 0])
             st = ta.state
             st[:6] = states0[lanes[batch]].T
-            st[6:] = np.eye(6).reshape(36, 1)
-            ta.pars[:] = runtime_params[:, lanes[batch]]
+            st[6:] = identity
+            pars[n_shared:] = runtime_params[n_shared:, lanes[batch]]
             out[b], stopped[batch] = _propagate_grid(
                 ta, np.ascontiguousarray(grid[batch].T), max_steps
             )
