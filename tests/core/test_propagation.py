@@ -5,7 +5,7 @@ import heyoka as hy
 import numpy as np
 import pytest
 
-from hamgrav.core.hamiltonian import STATE_VARIABLES
+from hamgrav.core.hamiltonian import STATE_VARIABLES, transition_equations
 from hamgrav.core.mascons import mascon_acceleration
 from hamgrav.core.model import (
     TRUTH_TOLERANCE,
@@ -15,7 +15,13 @@ from hamgrav.core.model import (
     hamiltonian_values,
 )
 from hamgrav.core.propagation import propagate_batch, propagate_scalar
-from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
+from hamgrav.core.terms import (
+    MasconTerm,
+    NeuralPotential,
+    PointMass,
+    SolarRadiationPressure,
+    SphericalHarmonics,
+)
 
 
 @pytest.fixture(scope="module")
@@ -119,3 +125,33 @@ def test_a_forked_child_propagates_on_threads_of_its_own():
         child.kill()
     assert got is not None, "the forked child's propagation did not finish within 60 s"
     assert np.array_equal(got, parent)
+
+
+@pytest.mark.parametrize("learnable", ["network", "sh"])
+def test_transition_equations_equal_heyokas_variational_system(synthetic_truth, learnable, rng):
+    """The state transition equations formed from the symmetric Hessian of H equal heyoka's
+    own variational system with respect to the state, term by term in the same order, at
+    random states, parameters and times (a learnable term and a time-dependent SRP term)."""
+    units = synthetic_truth.body.units
+    srp = SolarRadiationPressure(SolarRadiationPressure.pressure_for(units), 20.0)
+    if learnable == "network":
+        term = NeuralPotential((5, 4))
+    else:
+        term = SphericalHarmonics(4, synthetic_truth.body.brillouin_radius)
+    model = Model((PointMass(),), term, (srp,))
+    ours = transition_equations(model.hamiltonian())
+    reference = hy.var_ode_sys(model.system(), hy.var_args.vars, order=1).sys
+    assert len(ours) == len(reference) == 42
+    n = 50
+    state = np.concatenate([rng.normal(size=(6, n)), rng.normal(size=(36, n))])
+    state[:3] *= 1.5 / np.linalg.norm(state[:3], axis=0)  # outside the unit sphere
+    pars = rng.normal(size=(model.n_system_params, n)) * 0.1
+    time = rng.uniform(0.0, 10.0, n)
+    values = []
+    for system in (ours, reference):
+        f = hy.cfunc([rate for _, rate in system], vars=[v for v, _ in system])
+        values.append(f(state, pars=pars[: f.nparams], time=time))
+    assert np.all(np.isfinite(values[1]))
+    np.testing.assert_allclose(
+        values[0], values[1], rtol=1e-12, atol=1e-12 * np.abs(values[1]).max()
+    )

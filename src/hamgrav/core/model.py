@@ -25,7 +25,13 @@ from dataclasses import dataclass, replace
 import heyoka as hy
 import numpy as np
 
-from .hamiltonian import POSITION, STATE_VARIABLES, equations_of_motion, rotating_hamiltonian
+from .hamiltonian import (
+    POSITION,
+    STATE_VARIABLES,
+    equations_of_motion,
+    rotating_hamiltonian,
+    transition_equations,
+)
 from .terms import GravityTerm, term_from_description
 
 __all__ = [
@@ -214,7 +220,7 @@ def compiled_integrators(
         n_par = model.n_system_params
         n_state = 6
         if variational and wrt == "state":
-            sys = hy.var_ode_sys(sys, hy.var_args.vars, order=1)
+            sys = transition_equations(model.hamiltonian())
             n_state = 42
         elif variational:
             if n_par == 0:

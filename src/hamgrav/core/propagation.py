@@ -573,8 +573,9 @@ def state_transition(
     """Phi (n, m, 6, 6) = d state(times[i, k]) / d state(times[i, 0]) for the trajectories
     starting at ``states0`` (n, 6) at ``times[:, 0]``, runtime parameters (n_system_params, n);
     canonical, Phi[i, 0] = identity. NaN rows for a trajectory that does not reach its last
-    time. One compiled scalar integrator (heyoka ``var_ode_sys`` with respect to the state
-    variables), from the compile cache like the others."""
+    time. One compiled scalar integrator (the state transition equations of
+    :func:`hamgrav.core.hamiltonian.transition_equations`), from the compile cache like the
+    others."""
     states0 = np.asarray(states0, dtype=float)
     times = np.asarray(times, dtype=float)
     n, n_m = times.shape
