@@ -137,9 +137,7 @@ def test_blocks_of_one_batch_give_the_same_gradient(long_arcs, network, monkeypa
     batches = _adjoint(model, arcs, theta, threads=2)
     assert blocks.ok.all() and batches.ok.all()
     np.testing.assert_array_equal(batches.costs, blocks.costs)
-    assert np.abs(batches.gradient - blocks.gradient).max() <= 1e-14 * np.abs(
-        blocks.gradient
-    ).max()
+    assert np.abs(batches.gradient - blocks.gradient).max() <= 1e-14 * np.abs(blocks.gradient).max()
 
 
 def test_the_motion_rate_is_the_fastest_of_spin_orbit_and_track():
@@ -294,3 +292,21 @@ def test_an_arcs_gradient_does_not_depend_on_the_other_arcs(small_arcs, long_arc
     assert np.abs(together.gradient - expected).max() <= 1e-13 * np.abs(expected).max()
     nodes = [propagation._arc_nodes(x.times, x.states)[2][0] for x in (a, b)]
     assert nodes[1] > nodes[0]  # the sparse arc does need more nodes: the batch pads
+
+
+def test_a_kept_block_layout_gives_the_same_gradient(small_arcs, network):
+    """The second call on the same arcs reads each block's nodes and grid from the kept
+    layouts: the same numbers to the last bit, at other parameters too."""
+    model, theta = network
+    arcs = small_arcs.subset(np.tile(np.arange(small_arcs.n_arcs), 3))
+    propagation._forget_layouts()
+    first = _adjoint(model, arcs, theta, threads=2)
+    kept = len(propagation._LAYOUTS)
+    assert kept >= 2
+    again = _adjoint(model, arcs, theta, threads=2)
+    assert len(propagation._LAYOUTS) == kept  # nothing new formed
+    np.testing.assert_array_equal(again.gradient, first.gradient)
+    other = _adjoint(model, arcs, theta * 1.1, threads=2)
+    propagation._forget_layouts()
+    fresh = _adjoint(model, arcs, theta * 1.1, threads=2)
+    np.testing.assert_array_equal(fresh.gradient, other.gradient)

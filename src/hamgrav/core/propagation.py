@@ -19,8 +19,10 @@ and the integrators come from the one compile cache of :mod:`hamgrav.core.model`
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 import threading
+from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -283,9 +285,10 @@ def _segment_counts(times: np.ndarray, states: np.ndarray) -> np.ndarray:
 
 
 def _arc_nodes(
-    times: np.ndarray, states: np.ndarray, segments: np.ndarray | None = None
+    times: np.ndarray, states: np.ndarray | None, segments: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states`` (n, m, 6)) for
+    """The nodes of each arc (samples at ``times`` (n, m), m >= 2; ``states`` (n, m, 6), read
+    only for the default ``segments``) for
     the integral of the parameter rates, and the weights that fold the costate into them.
 
     Between samples t_k and t_k+1 the costate is lam(t) = Phi(t)^-T c_k with c_k constant
@@ -353,6 +356,59 @@ def _block_grid(times: np.ndarray, node_times: np.ndarray, counts: np.ndarray) -
     return np.take_along_axis(joined, order, axis=1), place[:, :m], place[:, m:]
 
 
+#: Layouts of recent blocks (:func:`_block_layout`), oldest first, and their size in floats.
+_LAYOUTS: OrderedDict[bytes, tuple] = OrderedDict()
+_LAYOUTS_KEPT = {"floats": 0}
+#: Floats of block layouts kept between calls (64 MB).
+_LAYOUT_FLOATS = 8_000_000
+_LAYOUTS_LOCK = threading.Lock()
+
+
+def _forget_layouts() -> None:
+    """Drop the kept block layouts."""
+    with _LAYOUTS_LOCK:
+        _LAYOUTS.clear()
+        _LAYOUTS_KEPT["floats"] = 0
+
+
+def _block_layout(times: np.ndarray, segments: np.ndarray) -> tuple:
+    """The nodes of a block's arcs (:func:`_arc_nodes`: node times, weights, counts) and its
+    grid (:func:`_block_grid`: grid, the samples' and the nodes' places), for its lanes'
+    sample times ``times`` (w, m), the first ``len(segments)`` of them its arcs (cut into
+    ``segments`` segments) and the rest repeats of its last arc. The layout depends on these
+    alone, not on the parameters: a fit asks for the gradient of the same arcs at every
+    step, so recent layouts are kept (read only), up to :data:`_LAYOUT_FLOATS` floats."""
+    n_arcs = len(segments)
+    key = hashlib.blake2b(
+        np.asarray([*times.shape, n_arcs, ADJOINT_SEGMENT_NODES]).tobytes()
+        + np.asarray(ADJOINT_SEGMENT_PHASE).tobytes()
+        + times.tobytes()
+        + np.asarray(segments, dtype=np.int64).tobytes(),
+        digest_size=16,
+    ).digest()
+    with _LAYOUTS_LOCK:
+        if key in _LAYOUTS:
+            _LAYOUTS.move_to_end(key)
+            return _LAYOUTS[key]
+    node_times, weights, counts = _arc_nodes(times[:n_arcs], None, np.asarray(segments))
+    pad = len(times) - n_arcs
+    grid, at_sample, at_node = _block_grid(
+        times,
+        np.concatenate([node_times, np.repeat(node_times[-1:], pad, axis=0)]),
+        np.concatenate([counts, np.repeat(counts[-1:], pad)]),
+    )
+    layout = (node_times, weights, counts, grid, at_sample, at_node)
+    for part in layout:
+        part.setflags(write=False)
+    size = sum(part.size for part in layout)
+    with _LAYOUTS_LOCK:
+        _LAYOUTS[key] = layout
+        _LAYOUTS_KEPT["floats"] += size
+        while _LAYOUTS_KEPT["floats"] > _LAYOUT_FLOATS and len(_LAYOUTS) > 1:
+            _LAYOUTS_KEPT["floats"] -= sum(part.size for part in _LAYOUTS.popitem(last=False)[1])
+    return layout
+
+
 def adjoint_gradient(
     model: Model,
     states0: np.ndarray,
@@ -389,9 +445,10 @@ def adjoint_gradient(
     one thread (the threads take the next block as they finish). Memory: the states, and
     per thread one block's 42 variables at the samples and nodes and their rates
     (n_system_params per node, at most :data:`_BLOCK_RATE_FLOATS` unless one batch needs
-    more); never a sensitivity per sample. The
-    first ``n_shared`` runtime parameters are shared by all arcs (their gradients summed);
-    the rest are per arc (returned in ``per_arc``)."""
+    more), and the blocks' layouts kept between calls (:func:`_block_layout`, at most
+    :data:`_LAYOUT_FLOATS` floats in all); never a sensitivity per sample. The first
+    ``n_shared`` runtime parameters are shared by all arcs (their gradients summed); the rest
+    are per arc (returned in ``per_arc``)."""
     from .model import parameter_rate_function
 
     times = np.asarray(times, dtype=float)
@@ -446,14 +503,8 @@ def adjoint_gradient(
         whether the step limit stopped it."""
         n_sel, n_batches = len(sel), -(-len(sel) // width)
         lanes = np.concatenate([sel, np.repeat(sel[-1:], n_batches * width - n_sel)])
-        node_times, node_weights, counts = _arc_nodes(
-            times[sel], forward.states[sel], segments[sel]
-        )
-        pad = lanes.size - n_sel
-        grid, at_sample, at_node = _block_grid(
-            times[lanes],
-            np.concatenate([node_times, np.repeat(node_times[-1:], pad, axis=0)]),
-            np.concatenate([counts, np.repeat(counts[-1:], pad)]),
+        node_times, node_weights, counts, grid, at_sample, at_node = _block_layout(
+            times[lanes], segments[sel]
         )
         out = np.empty((n_batches, grid.shape[1], 42, width))
         stopped = np.zeros(lanes.size, bool)
