@@ -499,8 +499,9 @@ def adjoint_gradient(
         return shared_rate_pars[total]
 
     def block_gradient(ta, sel: np.ndarray):
-        """The gradients (n_par, len(sel)) of the arcs ``sel``, whether each ended well, and
-        whether the step limit stopped it."""
+        """The arcs ``sel``: the sum of their gradients' shared part over those that ended
+        well (n_shared,), each one's per-arc part (n_par - n_shared, len(sel)), whether each
+        ended well, and whether the step limit stopped it."""
         n_sel, n_batches = len(sel), -(-len(sel) // width)
         lanes = np.concatenate([sel, np.repeat(sel[-1:], n_batches * width - n_sel)])
         node_times, node_weights, counts, grid, at_sample, at_node = _block_layout(
@@ -508,18 +509,23 @@ def adjoint_gradient(
         )
         out = np.empty((n_batches, grid.shape[1], 42, width))
         stopped = np.zeros(lanes.size, bool)
+        # each batch's grid, start times and states as heyoka takes them, formed at once
+        grids = np.ascontiguousarray(grid.reshape(n_batches, width, -1).transpose(0, 2, 1))
+        starts = times[lanes, 0].reshape(n_batches, width)
+        firsts = np.ascontiguousarray(
+            states0[lanes].reshape(n_batches, width, 6).transpose(0, 2, 1)
+        )
         pars = ta.pars
         pars[:n_shared] = runtime_params[:n_shared, sel[:1]]  # the same for every arc
+        own_pars = runtime_params[n_shared:, lanes]
+        st = ta.state
         for b in range(n_batches):
-            batch = slice(b * width, (b + 1) * width)
-            ta.set_time(times[lanes[batch], 0])
-            st = ta.state
-            st[:6] = states0[lanes[batch]].T
+            ta.set_time(starts[b])
+            st[:6] = firsts[b]
             st[6:] = identity
-            pars[n_shared:] = runtime_params[n_shared:, lanes[batch]]
-            out[b], stopped[batch] = _propagate_grid(
-                ta, np.ascontiguousarray(grid[batch].T), max_steps
-            )
+            if own_pars.size:
+                pars[n_shared:] = own_pars[:, b * width : (b + 1) * width]
+            out[b], stopped[b * width : (b + 1) * width] = _propagate_grid(ta, grids[b], max_steps)
         # the lanes' states and transition matrices at the grid, one row per lane and point
         n_grid, n_nodes = grid.shape[1], node_times.shape[1]
         rows = out.transpose(0, 3, 1, 2).reshape(-1, 42)
@@ -543,10 +549,17 @@ def adjoint_gradient(
         if n_rate_pars:
             extra["pars"] = rate_pars(sel, counts)
         values = rates(np.ascontiguousarray(points.T), batch_parallel=False, **extra)
+        good = np.all(np.isfinite(lam), axis=(1, 2)) & ~stopped[:n_sel]
+        # the shared part summed over the block's nodes at once; arc by arc only for the
+        # per-arc parameters, or to find the arcs whose rates are not finite
+        shared = -values[:n_shared].sum(axis=1)
         first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        gradient = -np.add.reduceat(values, first, axis=1)
-        finite = np.all(np.isfinite(gradient), axis=0) & np.all(np.isfinite(lam), axis=(1, 2))
-        return gradient, finite & ~stopped[:n_sel], stopped[:n_sel]
+        per_arc = -np.add.reduceat(values[n_shared:], first, axis=1)
+        if not (np.all(np.isfinite(shared)) and np.all(np.isfinite(per_arc)) and good.all()):
+            finite = np.all(np.isfinite(np.add.reduceat(values, first, axis=1)), axis=0)
+            good &= finite & np.all(np.isfinite(per_arc), axis=0)
+            shared = -np.add.reduceat(values[:n_shared], first, axis=1)[:, good].sum(axis=1)
+        return shared, per_arc, good, stopped[:n_sel]
 
     if len(pending) and n_m > 1:
         rate_floats = n_par * width * int(segments.max()) * ADJOINT_SEGMENT_NODES  # a batch's
@@ -562,12 +575,12 @@ def adjoint_gradient(
                 if key is None:
                     return
                 sel = blocks[key]
-                gradient, good, stopped = block_gradient(ta, sel)
+                shared, own, good, stopped = block_gradient(ta, sel)
                 with lock:
                     ok[sel] &= good
                     exceeded[sel] |= stopped
-                    per_arc[sel] = gradient[n_shared:].T
-                    partial[key] = gradient[:n_shared, good].sum(axis=1)
+                    per_arc[sel] = own.T
+                    partial[key] = shared
 
         _over_threads(compiled, n_threads, work)
     gradient = np.zeros(n_par)
