@@ -46,18 +46,16 @@ __all__ = [
 
 
 def _propagate_grid(ta, grid: np.ndarray, max_steps: int | None) -> tuple[np.ndarray, bool]:
-    """``ta.propagate_grid(grid)``, stopped after ``max_steps`` Taylor steps (None: no cap):
+    """``ta.propagate_grid(grid)`` of a batch integrator, stopped after ``max_steps`` Taylor
+    steps (None: no cap):
     a well-posed arc takes a few steps, so a runaway count means the parameters make the
     dynamics stiff or singular (a solver then rejects the trial instead of waiting on it).
     Returns (the states at the grid, whether the cap stopped it). The cap is heyoka's own: a
     Python step callback would take the GIL at every step and serialise the threads that
     share out the batches."""
     res = ta.propagate_grid(grid, max_steps=0 if max_steps is None else int(max_steps))
-    if isinstance(res[0], hy.taylor_outcome):  # a scalar integrator: (outcome, ..., states)
-        exceeded = res[0] == hy.taylor_outcome.step_limit
-    else:  # a batch: each lane's outcome
-        exceeded = any(o[0] == hy.taylor_outcome.step_limit for o in ta.propagate_res)
-    return res[-1], bool(exceeded)
+    exceeded = any(o[0] == hy.taylor_outcome.step_limit for o in ta.propagate_res)
+    return res[-1], exceeded
 
 
 @dataclass(frozen=True)
@@ -556,9 +554,9 @@ def adjoint_gradient(
         first = np.concatenate([[0], np.cumsum(counts)[:-1]])
         per_arc = -np.add.reduceat(values[n_shared:], first, axis=1)
         if not (np.all(np.isfinite(shared)) and np.all(np.isfinite(per_arc)) and good.all()):
-            finite = np.all(np.isfinite(np.add.reduceat(values, first, axis=1)), axis=0)
-            good &= finite & np.all(np.isfinite(per_arc), axis=0)
-            shared = -np.add.reduceat(values[:n_shared], first, axis=1)[:, good].sum(axis=1)
+            sums = -np.add.reduceat(values, first, axis=1)
+            good &= np.all(np.isfinite(sums), axis=0)
+            shared = sums[:n_shared, good].sum(axis=1)
         return shared, per_arc, good, stopped[:n_sel]
 
     if len(pending) and n_m > 1:
