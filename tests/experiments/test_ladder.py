@@ -1,6 +1,7 @@
 """The deep-region ladder: its oracle fits, and the experiment end to end on a tiny campaign."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -178,3 +179,35 @@ def test_unknown_rung_refused():
         DeepLadderConfig.from_dict({"rungs": ["oracle-deep", "oracle-everything"]})
     with pytest.raises(InputError, match="oracle-deep is not a tracking rung"):
         DeepLadderConfig.from_dict({"adam_rungs": ["oracle-deep"]})
+
+
+def test_with_the_shape_prior_every_model_sits_on_it_and_the_prior_is_scored_alone(tmp_path):
+    # the tiny campaign's truth is homogeneous, so the constant-density shape prior alone is
+    # far below no correction (1); the rows fitted on it must not be worse than it outside
+    config = DeepLadderConfig(
+        **TINY, oracle_altitudes_m=(20.0,), oracle_harmonic=(1e-4,), rungs=("oracle-arcs",)
+    )
+    out = {}
+    for prior in ("none", "shape"):
+        report, _ = run_experiment(
+            "deep-ladder",
+            replace(config, prior=prior),
+            seed=2,
+            output=tmp_path / prior,
+            verbose=False,
+        )
+        out[prior] = report["repetitions"][0]["ladder"]
+    assert set(out["none"]) == {"network/oracle-arcs", "sh2/oracle-arcs"}
+    assert set(out["shape"]) == {"shape/prior-alone", *out["none"]}
+    alone = out["shape"]["shape/prior-alone"]
+    assert alone["exterior"] < 0.2 and alone["deep"] < 0.5
+    # on the prior, SH 2 fits the rest: better than the prior alone, and than SH 2 without it
+    assert out["shape"]["sh2/oracle-arcs"]["exterior"] < alone["exterior"]
+    assert out["shape"]["sh2/oracle-arcs"]["exterior"] < out["none"]["sh2/oracle-arcs"]["exterior"]
+    readme = (tmp_path / "shape" / "README.md").read_text()
+    assert "### shape" in readme and "| the shape prior alone (no correction) |" in readme
+
+
+def test_an_unknown_prior_is_refused():
+    with pytest.raises(InputError, match="prior must be one of none, shape, got 'mascons'"):
+        DeepLadderConfig(body="synthetic", prior="mascons").check()

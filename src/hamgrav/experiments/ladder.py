@@ -34,6 +34,10 @@ problem; the first large jump between rungs names what limits the deep-region er
 The network is the ``network-best`` configuration (LM, harmonic penalty, an ensemble of
 three); with ``adam_rungs`` the tracking rungs named there are also fitted by the paper's
 own protocol (Adam, one network, early-stopped on held-out arcs), row ``network-adam``.
+With ``prior`` "shape" every model sits on the imaged shape at constant density (the known
+part; the truth may be heterogeneous, see ``interior``), each rung fits what the prior leaves,
+and row ``shape`` scores the prior alone: whether a known shape moves the extrapolation
+floor that the network from the central term alone cannot pass.
 
 Each rung's model is scored on the deep experiment's sets: the mean error over the exterior
 shells, the 300 m surface-following set inside R_B and its radial bins. The regressions use
@@ -95,6 +99,10 @@ RUNGS = {
 DEFAULT_RUNGS = tuple(r for r in RUNGS if r != "oracle-descents")
 #: The rungs that fit tracking arcs (the others fit the true field).
 TRACKING_RUNGS = ("noise-free", "tracking", "descents-warm", "descents-scratch")
+#: The known parts a ladder can put under its models (the ``prior`` option).
+PRIORS = ("none", "shape")
+#: The README's text of the shape prior's own row (no correction fitted).
+PRIOR_ALONE = "the shape prior alone (no correction)"
 #: LM iteration cap of the oracle fits (per member): they start from the same
 #: initialisation as the tracking fit and have no validation stop.
 ORACLE_ITERATIONS = 40
@@ -152,6 +160,12 @@ class DeepLadderConfig(DeepCampaignConfig):
     )
 
     adam_steps: int = option(1500, "Adam steps of the paper's protocol (adam_rungs).", at_least=1)
+    prior: str = option(
+        "none",
+        "Known part of every model: 'none' (the central term) or 'shape' (the imaged shape "
+        "at constant density as mascons; the network and SH carry the rest, and a row "
+        "'shape' scores the prior alone).",
+    )
     oracle_iterations: int = option(
         ORACLE_ITERATIONS,
         "LM iterations of each ensemble member in the oracle rungs' fits (the cap; they stop "
@@ -161,6 +175,10 @@ class DeepLadderConfig(DeepCampaignConfig):
 
     def check(self) -> None:
         super().check()
+        if self.prior not in PRIORS:
+            raise InputError(
+                f"{label('prior')} must be one of {', '.join(PRIORS)}, got {self.prior!r}"
+            )
         wrong = sorted(set(self.adam_rungs) - set(TRACKING_RUNGS))
         if wrong:
             raise InputError(
@@ -298,13 +316,16 @@ class DeepLadderExperiment(Experiment):
         arc_points = arcs.true_states[..., :3].reshape(-1, 3)
         descent_points = descents.true_states[..., :3].reshape(-1, 3)
         descent_points = descent_points[np.isfinite(descent_points).all(axis=1)]
+        known = {"prior": "shape"} if config.prior == "shape" else {}
         rows = {
-            "network": network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic),
-            f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree},
+            "network": network_best(
+                config.hidden, config.lm_iterations, harmonic=config.harmonic, **known
+            ),
+            f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree, **known},
         }
         if config.adam_rungs:
             rows["network-adam"] = preset(
-                "network", hidden=config.hidden, adam_steps=config.adam_steps
+                "network", hidden=config.hidden, adam_steps=config.adam_steps, **known
             )
         ladder, fits = {}, {}
 
@@ -332,6 +353,11 @@ class DeepLadderExperiment(Experiment):
         }
         # label 1: the deep or descent points, 0: the arcs' (weights 1, 1 at a share of 0.5)
         share_weights = {0: 2 * (1 - config.oracle_deep_share), 1: 2 * config.oracle_deep_share}
+        if known:  # what the prior carries before any fit: the floor the models start from
+            prior_model, _ = row_estimator(
+                {"term": "none", **known}, seed=ctx.seed, body=body
+            ).build_model(arcs)
+            score("shape", "prior-alone", prior_model, np.zeros(0), {})
         for row, settings in rows.items():
             wanted = set(config.adam_rungs if row == "network-adam" else config.rungs)
             settings = committed_holdout(settings)
@@ -397,7 +423,7 @@ class DeepLadderExperiment(Experiment):
         return RunOutput(result, {})
 
     def readme(self, report: dict) -> list[str]:
-        return ladder_readme(report, RUNGS)
+        return ladder_readme(report, {**RUNGS, "prior-alone": PRIOR_ALONE})
 
     def figures(self, report: dict, artefacts: dict) -> dict:
         return {"ladder.png": ladder_figure(report)}
