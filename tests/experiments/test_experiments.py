@@ -223,6 +223,7 @@ def test_descent_with_both_blocks_tiny(tmp_path):
         (["deep", "--deep-bins-rb", "0.9,0.5"], "--deep-bins-rb must be two or more increasing"),
         (["deep", "--stages", "19"], "--stages must lie between 1 and --orbits (18)"),
         (["deep", "--descent-span", "all"], "--descent-span must be one of end, whole"),
+        (["deep", "--prior", "mascons"], "--prior must be one of none, shape, got 'mascons'"),
         (["deep", "--descent-iterations", "-1"], "--descent-iterations must be at least 0, got -1"),
         (["deep", "--descent-share", "1"], "--descent-share must be 0 (unweighted) or lie in"),
         (
@@ -478,6 +479,38 @@ def test_deep_tiny_without_the_later_parts(tmp_path):
     assert "deep_bins_after_descents" not in rep and "d_optimal_picks" not in rep
     assert rep["orders"]["random"] == [] and "d-optimal" not in rep["orders"]
     assert not (out / "orders.png").exists() and not (out / "descents.png").exists()
+
+
+def test_deep_tiny_on_the_shape_prior(tmp_path):
+    # every model sits on the constant-density shape; the synthetic truth is homogeneous, so
+    # the prior alone is far below no correction (1), and SH 2 on it far below SH 2 alone
+    args = [
+        "experiment", "deep", *TINY_CAMPAIGN, "--stages", "2", "--sh-degrees", "2",
+        "--map-degrees", "2", "--hidden", "4", "--lm-iterations", "2",
+        "--warm-iterations", "1", "--altitude-m", "30", "--map-points", "11", "--descents", "0",
+        "--random-orders", "0", "--no-d-optimal",
+    ]  # fmt: skip
+    reps = {}
+    for prior in ("none", "shape"):
+        out = tmp_path / prior
+        result = runner.invoke(app, [*args, "--prior", prior, "-o", str(out)])
+        assert result.exit_code == 0, result.output
+        data = json.loads((out / "results.json").read_text())
+        reps[prior] = data["repetitions"][0]
+    assert " --prior shape " in data["command"] + " "
+    assert "prior_alone" not in reps["none"]
+    rep = reps["shape"]
+    alone = rep["prior_alone"]["shape"]
+    assert set(rep["summary"]) == {"sh2", "network-best"}  # the prior is not a fitted row
+    assert alone["exterior"] < 0.01 and alone["deep"] < 0.1
+    assert alone["deepest_bin"] == alone["0.25-0.45"]
+    for key in ("exterior_error", "deep_error"):
+        assert rep[key]["sh2"] < 0.2 * reps["none"][key]["sh2"], key
+    assert data["aggregate"]["prior_alone"]["shape"]["deep"]["median"] == alone["deep"]
+    readme = (tmp_path / "shape" / "README.md").read_text()
+    assert "every model on the imaged shape at constant density" in readme
+    assert f"| the shape prior alone | {alone['exterior']:.3g} | {alone['deep']:.3g} |" in readme
+    assert "| the shape prior alone |" not in (tmp_path / "none" / "README.md").read_text()
 
 
 def test_swarm_tiny(tmp_path):

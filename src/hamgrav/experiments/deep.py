@@ -106,6 +106,7 @@ __all__ = [
     "evaluate",
     "campaign_descents",
     "PAPER",
+    "PRIORS",
 ]
 
 #: The paper's numbers (67P, 126 arcs, one run): SH 8 exterior error (shells 1.2-1.7 R_B);
@@ -133,6 +134,8 @@ PAPER = {
 NETWORK = "network-best"
 #: The paper's lowest tracked sample [R_B]: the sample count below it is reported.
 SAMPLE_FLOOR_RB = 0.96
+#: The known parts a deep-region model can sit on (the ``prior`` option).
+PRIORS = ("none", "shape")
 
 
 @dataclass(frozen=True)
@@ -193,9 +196,19 @@ class DeepCampaignConfig(CampaignConfig):
         "What a descent's arc covers: 'end', its last 40 samples at 14 s, ending at contact; "
         "'whole', 40 samples spread from release to contact.",
     )
+    prior: str = option(
+        "none",
+        "Known part of every model: 'none' (the central term) or 'shape' (the imaged shape "
+        "at constant density as mascons; the network and SH carry the rest, and the prior "
+        "alone is scored too).",
+    )
 
     def check(self) -> None:
         super().check()
+        if self.prior not in PRIORS:
+            raise InputError(
+                f"{label('prior')} must be one of {', '.join(PRIORS)}, got {self.prior!r}"
+            )
         if self.descent_span not in DESCENT_SPANS:
             raise InputError(
                 f"{label('descent_span')} must be one of {', '.join(DESCENT_SPANS)}, "
@@ -337,6 +350,31 @@ def evaluate(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) 
     return out
 
 
+def _prior_alone(arcs: Arcs, truth: Truth, config: DeepCampaignConfig, ctx) -> dict:
+    """The shape prior's own errors, no correction fitted ({"shape": {exterior, deep,
+    deepest_bin, worst_bin, and each bin's error}}): the floor the models start from."""
+    model, _ = row_estimator(
+        {"term": "none", "prior": "shape"}, seed=ctx.seed, body=truth.body
+    ).build_model(arcs)
+    ev = deep_bin_errors(
+        {"shape": (model, np.zeros(0))}, truth, config.altitude_m, config.deep_bins_rb, ctx.seed
+    )
+    shells = sets_for(truth, config.shells_rb, (), ctx.seed)
+    bins = ev["deep_bins"]["shape"]
+    deepest, worst = _bin_summary(bins)
+    return {
+        "shape": {
+            "exterior": significant(
+                np.mean(list(errors_of(model, np.zeros(0), truth, shells).values()))
+            ),
+            "deep": ev["deep_error"]["shape"],
+            "deepest_bin": deepest,
+            "worst_bin": worst,
+            **bins,
+        }
+    }
+
+
 def _descent_weights(est, run, arcs: Arcs, descent_idx: np.ndarray, share: float) -> np.ndarray:
     """Arc weights (one per arc of ``arcs``) of the descent refit: the descents at
     ``share`` of the cost against the orbital arcs the run trains on
@@ -459,6 +497,7 @@ class DeepExperiment(Experiment):
         "deep_bins_after_descents",
         "descents_summary",
         "orders_summary",
+        "prior_alone",
     )
     default_output = "results/deep-67p"
     figure_captions = {
@@ -514,11 +553,12 @@ class DeepExperiment(Experiment):
             )
             lap("descents_simulate")
         arriving = [all_arcs.arcs_of(g) for g in groups]
-        best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic)
+        known = {"prior": "shape"} if config.prior == "shape" else {}
+        best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic, **known)
         best["warm_solver"] = replace(
             best["warm_solver"], max_iter=config.warm_iterations, validation_gate=config.warm_gate
         )
-        rows = {f"sh{d}": {"term": "sh", "degree": d} for d in config.sh_degrees}
+        rows = {f"sh{d}": {"term": "sh", "degree": d, **known} for d in config.sh_degrees}
         rows[NETWORK] = best
         refit = (
             {NETWORK, *(f"sh{d}" for d in config.descent_degrees)}
@@ -616,6 +656,12 @@ class DeepExperiment(Experiment):
             "stages": stages,
             "fits": fits,
         }
+        if known:
+            result["prior_alone"] = _prior_alone(all_arcs, truth, config, ctx)
+            ctx.say(
+                f"the shape prior alone: {result['prior_alone']['shape']['exterior']} exterior, "
+                f"{result['prior_alone']['shape']['deep']} deep"
+            )
         if after:
             result.update(self._after_descents(after, summary, truth, shells, config, ctx))
             result["descents"] = {**descents, "fits": descent_fits}

@@ -99,8 +99,6 @@ RUNGS = {
 DEFAULT_RUNGS = tuple(r for r in RUNGS if r != "oracle-descents")
 #: The rungs that fit tracking arcs (the others fit the true field).
 TRACKING_RUNGS = ("noise-free", "tracking", "descents-warm", "descents-scratch")
-#: The known parts a ladder can put under its models (the ``prior`` option).
-PRIORS = ("none", "shape")
 #: The README's text of the shape prior's own row (no correction fitted).
 PRIOR_ALONE = "the shape prior alone (no correction)"
 #: LM iteration cap of the oracle fits (per member): they start from the same
@@ -160,12 +158,6 @@ class DeepLadderConfig(DeepCampaignConfig):
     )
 
     adam_steps: int = option(1500, "Adam steps of the paper's protocol (adam_rungs).", at_least=1)
-    prior: str = option(
-        "none",
-        "Known part of every model: 'none' (the central term) or 'shape' (the imaged shape "
-        "at constant density as mascons; the network and SH carry the rest, and a row "
-        "'shape' scores the prior alone).",
-    )
     oracle_iterations: int = option(
         ORACLE_ITERATIONS,
         "LM iterations of each ensemble member in the oracle rungs' fits (the cap; they stop "
@@ -175,10 +167,6 @@ class DeepLadderConfig(DeepCampaignConfig):
 
     def check(self) -> None:
         super().check()
-        if self.prior not in PRIORS:
-            raise InputError(
-                f"{label('prior')} must be one of {', '.join(PRIORS)}, got {self.prior!r}"
-            )
         wrong = sorted(set(self.adam_rungs) - set(TRACKING_RUNGS))
         if wrong:
             raise InputError(

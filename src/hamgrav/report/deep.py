@@ -81,7 +81,14 @@ def deep_readme(report: dict, paper: dict) -> list[str]:
             if cfg.get("harmonic")
             else ""
         )
-        + "). "
+        + ")"
+        + (
+            ", every model on the imaged shape at constant density (the known part, as "
+            "mascons; the truth's interior may differ from it), fitting what it leaves"
+            if cfg.get("prior") == "shape"
+            else ""
+        )
+        + ". "
         "Errors are relative errors of the perturbing potential (1 = no correction): "
         f"`exterior` is the mean over the shells {shells} R_B, `deep` the "
         f"{cfg['altitude_m']:g} m surface-following set inside the Brillouin sphere "
@@ -112,6 +119,10 @@ def deep_readme(report: dict, paper: dict) -> list[str]:
         cells += [format_range(bins_agg.get(m, {}).get(k), "{:.3g}") for k in labels]
         cells.append(_cell(summary, m, "patch_median"))
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    prior = report["aggregate"].get("prior_alone", {}).get("shape")
+    if prior:  # the floor the models start from: the known shape, no correction
+        cells = [_cell({"shape": prior}, "shape", k) for k in ("exterior", "deep", *labels)]
+        lines.append("| the shape prior alone | " + " | ".join(cells) + " | - |")
     lines += [
         "",
         "Points of the surface-following set per bin: "
