@@ -43,6 +43,10 @@ The later parts are further stage sequences fed to the same continual fit
   each on its own, so its information is block-diagonal, one block per member (the gain is
   the sum of the members' gains, eps per member).
 
+With ``prior`` "shape" every model sits on the imaged shape at constant density (the known
+part, as mascons; the truth's ``interior`` may differ from it) and fits what it leaves; the
+prior alone is scored on the same sets (``prior_alone``).
+
 Each part's wall time is reported (``wall_parts_s``).
 """
 
