@@ -354,16 +354,16 @@ def evaluate(fitted: dict, truth: Truth, config: DeepCampaignConfig, seed: int) 
     return out
 
 
-def _prior_alone(arcs: Arcs, truth: Truth, config: DeepCampaignConfig, ctx) -> dict:
-    """The shape prior's own errors, no correction fitted ({"shape": {exterior, deep,
-    deepest_bin, worst_bin, and each bin's error}}): the floor the models start from."""
+def _prior_alone(arcs: Arcs, truth: Truth, shells: dict, config: DeepCampaignConfig, ctx) -> dict:
+    """The shape prior's own errors on the exterior ``shells`` and the deep set, no
+    correction fitted ({"shape": {exterior, deep, deepest_bin, worst_bin, and each bin's
+    error}}): the floor the models start from."""
     model, _ = row_estimator(
         {"term": "none", "prior": "shape"}, seed=ctx.seed, body=truth.body
     ).build_model(arcs)
     ev = deep_bin_errors(
         {"shape": (model, np.zeros(0))}, truth, config.altitude_m, config.deep_bins_rb, ctx.seed
     )
-    shells = sets_for(truth, config.shells_rb, (), ctx.seed)
     bins = ev["deep_bins"]["shape"]
     deepest, worst = _bin_summary(bins)
     return {
@@ -661,7 +661,7 @@ class DeepExperiment(Experiment):
             "fits": fits,
         }
         if known:
-            result["prior_alone"] = _prior_alone(all_arcs, truth, config, ctx)
+            result["prior_alone"] = _prior_alone(all_arcs, truth, shells, config, ctx)
             ctx.say(
                 f"the shape prior alone: {result['prior_alone']['shape']['exterior']} exterior, "
                 f"{result['prior_alone']['shape']['deep']} deep"
