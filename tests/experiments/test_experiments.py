@@ -430,12 +430,22 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
         *TINY_DEEP, "--sh-degrees", "2", "--map-degrees", "2", "--map-points", "11",
         "--descent-degrees", "2", "--descent-span", "whole", "--descent-iterations", "3",
         "--descent-share", "0.2", "--random-orders", "0", "--no-d-optimal", "--no-warm-gate",
-        "-o", str(out),
+        "--descent-control", "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     data = json.loads((out / "results.json").read_text())
     rep = data["repetitions"][0]
+    # the control: the network's same refit with no descent arcs, scored beside it (SH not)
+    summary = rep["descents_summary"]
+    net = summary["network-best"]
+    assert "deep_control" not in summary["sh2"]
+    assert set(rep["deep_bins_descent_control"]) == {"network-best"}
+    assert (
+        net["deepest_bin_control"] == rep["deep_bins_descent_control"]["network-best"]["0.25-0.45"]
+    )
+    assert net["exterior_control"] != net["exterior_after"]  # the descents moved the refit
+    assert net["deep_control"] != net["deep_before"]  # the refit alone moved the fit
     # the warm stages ran without the validation gate (on by default), and the command says so
     assert rep["fits"]["network-best"]["validation_gate"] is False
     assert " --no-warm-gate " in data["command"]
@@ -460,6 +470,12 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     assert "the descent arcs weigh as a set 0.2 of the cost" in readme
     assert "40 samples spread evenly from release to contact" in readme
     assert "the network runs 3 LM iterations per member" in readme
+    assert "| network-best | the same refit, no descents | " in readme
+    # the control needs descents to leave out
+    refused = runner.invoke(app, [*args[:-2], "--descents", "0", "-o", str(tmp_path / "x")])
+    assert refused.exit_code == 2 and "--descent-control refits without the descents" in (
+        refused.output
+    )
 
 
 def test_deep_tiny_without_the_later_parts(tmp_path):

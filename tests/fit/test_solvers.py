@@ -358,6 +358,30 @@ def test_a_stage_without_validation_trains_every_new_arc_but_no_earlier_hold_out
     assert "validation" not in second.result.members[0].history
 
 
+def test_a_forked_run_continues_on_its_own(small_arcs, synthetic_truth):
+    """``fork()``: a stage added to the fork gives what the same stage added to the run
+    gives (same parameters to rounding, same arcs and hold-outs), and neither changes the
+    other's stages: the same refit with and without new arcs from one starting point."""
+    est = _two_member_network(synthetic_truth, hidden=4, max_iter=2)
+    run = ContinualFit(est, small_arcs)
+    first = run.add(np.arange(0, 5))
+    twin, bare = run.fork(), run.fork()
+    assert twin.estimator is not est and twin.records == run.records
+    solver = LevenbergMarquardt(max_iter=2, rtol=0.0)
+    on_twin = twin.add(np.arange(5, 9), validate=False, solver=solver)
+    assert len(run.records) == 1 and np.array_equal(run.params, first.result.params)
+    alone = bare.add(np.zeros(0, dtype=int), validate=False, solver=solver)
+    on_run = run.add(np.arange(5, 9), validate=False, solver=solver)
+    np.testing.assert_allclose(on_twin.result.params, on_run.result.params, rtol=1e-10, atol=0)
+    np.testing.assert_array_equal(on_twin.arcs, on_run.arcs)
+    np.testing.assert_array_equal(on_twin.validation, on_run.validation)
+    # no new arcs: the first stage's arcs, trained on again from its parameters
+    assert np.array_equal(alone.arcs, first.arcs) and len(twin.records) == 2
+    assert alone.warm_started and alone.result.initial_cost == pytest.approx(
+        first.result.params_cost, rel=1e-12
+    )
+
+
 class _OneParameterProblem:
     """Training cost (theta - 1)^2 / 2 in one parameter; the validation cost is the given
     function of theta (arc index 1 is the validation arc, 0 the training arc)."""

@@ -273,6 +273,12 @@ class DeepExperimentConfig(DeepCampaignConfig):
         "correction leaves on them and on the orbital training arcs "
         "(hamgrav.fit.weights.share_weights; the orbital arcs keep weight 1).",
     )
+    descent_control: bool = option(
+        False,
+        "Also run the network's descent refit from the same stage-6 fit with no descent "
+        "arcs (same solver and budget): what the refit alone changes, scored beside the "
+        "refit on the descents.",
+    )
     random_orders: int = option(
         5,
         "Random arrival orders of the same orbits, network only, seeded by the seed (0: off).",
@@ -297,6 +303,11 @@ class DeepExperimentConfig(DeepCampaignConfig):
             raise InputError(
                 f"{label('descent_share')} must be 0 (unweighted) or lie in (0, 1), e.g. 0.2; "
                 f"got {self.descent_share}"
+            )
+        if self.descent_control and not self.descents:
+            raise InputError(
+                f"{label('descent_control')} refits without the descents: give "
+                f"{label('descents')} above 0, or leave it off"
             )
         if self.descent_share and not self.descents:
             raise InputError(
@@ -499,6 +510,7 @@ class DeepExperiment(Experiment):
         "summary",
         "deep_bins",
         "deep_bins_after_descents",
+        "deep_bins_descent_control",
         "descents_summary",
         "orders_summary",
         "prior_alone",
@@ -580,7 +592,7 @@ class DeepExperiment(Experiment):
             }
             for g, n in zip(groups, counts, strict=True)
         ]
-        finals, after, descent_fits, fits = {}, {}, {}, {}
+        finals, after, descent_fits, fits, controls = {}, {}, {}, {}, {}
         for name, settings in rows.items():
             est, run = fit_staged(settings, all_arcs, arriving, truth, ctx)
             records = list(run.records)
@@ -602,6 +614,9 @@ class DeepExperiment(Experiment):
                     if config.descent_share
                     else None
                 )
+                # the same refit with no new arcs, from the same fit (descent_control)
+                control = run.fork() if config.descent_control and name == NETWORK else None
+                none = np.zeros(0, dtype=int)
                 if config.descent_iterations:
                     # all descents trained, no validation stop: the network runs a fixed
                     # budget, SH its own solver to convergence
@@ -617,8 +632,14 @@ class DeepExperiment(Experiment):
                     record = run.add(
                         descent_idx, validate=False, solver=solver, arc_weights=weights
                     )
+                    if control is not None:
+                        control.add(none, validate=False, solver=solver)
                 else:
                     record = run.add(descent_idx, arc_weights=weights)
+                    if control is not None:
+                        control.add(none)
+                if control is not None:
+                    controls[name] = (control.estimator.model_, control.params)
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
                 if weights is not None:
@@ -667,7 +688,9 @@ class DeepExperiment(Experiment):
                 f"{result['prior_alone']['shape']['deep']} deep"
             )
         if after:
-            result.update(self._after_descents(after, summary, truth, shells, config, ctx))
+            result.update(
+                self._after_descents(after, summary, truth, shells, config, ctx, controls)
+            )
             result["descents"] = {**descents, "fits": descent_fits}
             lap("evaluate_descents")
         result.update(self._orders(arcs, truth, best, sizes, stages, shells, tracking, ctx, config))
@@ -684,11 +707,17 @@ class DeepExperiment(Experiment):
         return RunOutput(result, artefacts)
 
     @staticmethod
-    def _after_descents(after, summary, truth, shells, config, ctx) -> dict:
+    def _after_descents(after, summary, truth, shells, config, ctx, controls) -> dict:
         """The deep bins, deep set and exterior error of the models refitted on the
-        descents, beside their values before."""
+        descents, beside their values before, and of the ``controls`` (the same refits
+        with no descent arcs; {name: (model, params)}) as ``*_control``."""
         ev = deep_bin_errors(after, truth, config.altitude_m, config.deep_bins_rb, ctx.seed)
         out = {"deep_bins_after_descents": ev["deep_bins"], "descents_summary": {}}
+        if controls:
+            ev_control = deep_bin_errors(
+                controls, truth, config.altitude_m, config.deep_bins_rb, ctx.seed
+            )
+            out["deep_bins_descent_control"] = ev_control["deep_bins"]
         for name, (model, params) in after.items():
             deepest, worst = _bin_summary(ev["deep_bins"][name])
             exterior = np.mean(list(errors_of(model, params, truth, shells).values()))
@@ -701,6 +730,14 @@ class DeepExperiment(Experiment):
                 "exterior_before": summary[name]["exterior"],
                 "exterior_after": significant(exterior),
             }
+            if name in controls:
+                c_model, c_params = controls[name]
+                c_exterior = np.mean(list(errors_of(c_model, c_params, truth, shells).values()))
+                out["descents_summary"][name].update(
+                    deepest_bin_control=_bin_summary(ev_control["deep_bins"][name])[0],
+                    deep_control=ev_control["deep_error"][name],
+                    exterior_control=significant(c_exterior),
+                )
         ctx.say(
             "after the descents, deepest bin: "
             + ", ".join(

@@ -82,6 +82,16 @@ class ContinualFit:
         """Parameters of the last stage (None before the first)."""
         return self.records[-1].result.params if self.records else None
 
+    def fork(self) -> ContinualFit:
+        """A run that continues from this one's last stage on its own: a fresh estimator of
+        the same hyperparameters, the same arcs, stages and hold-outs. Stages added to either
+        leave the other as it was (e.g. the same refit with and without new arcs)."""
+        twin = ContinualFit(GravityEstimator(**self.estimator.get_params()), self.arcs)
+        twin.warm_start = self.warm_start
+        twin.records = list(self.records)
+        twin._seen, twin._held_out = self._seen.copy(), self._held_out.copy()
+        return twin
+
     def add(
         self,
         new: Sequence[int],
@@ -112,7 +122,7 @@ class ContinualFit:
         # the run's arcs change only once the stage is fitted: a refused or failed stage
         # leaves the run as it was
         held_out = self._held_out
-        if validate and estimator.holdout_fraction > 0:
+        if validate and len(new) and estimator.holdout_fraction > 0:
             _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
             held_out = np.union1d(held_out, new[val])
         seen = np.concatenate([self._seen, new])

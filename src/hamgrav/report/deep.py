@@ -422,11 +422,22 @@ def _descents_section(report: dict, net: str) -> list[str]:
         "| model | | exterior | deep | " + " | ".join(labels) + " |",
         "|---|---|---|---|" + "---|" * len(labels),
     ]
+    agg_control = report["aggregate"].get("deep_bins_descent_control", {})
     for m in d_agg:
-        for when, agg in (("before", agg_before), ("after", agg_after)):
+        rows = [("before", "before", agg_before), ("after", "after", agg_after)]
+        if m in agg_control:
+            rows.append(("control", "the same refit, no descents", agg_control))
+        for when, row, agg in rows:
             cells = [_cell(d_agg, m, f"exterior_{when}"), _cell(d_agg, m, f"deep_{when}")]
             cells += [format_range(agg.get(m, {}).get(k), "{:.3g}") for k in labels]
-            lines.append(f"| {m} | {when} | " + " | ".join(cells) + " |")
+            lines.append(f"| {m} | {row} | " + " | ".join(cells) + " |")
+    if agg_control:
+        lines += [
+            "",
+            "The control row (--descent-control) runs the network's refit from the same "
+            "stage-6 fit with the same solver and budget but no descent arcs: what the refit "
+            "alone moves, apart from what the descents bring.",
+        ]
     fits = first["descents"].get("fits", {})
     lines += ["", "Refits on the descents (first repetition):", ""]
     for m, f in fits.items():
