@@ -470,7 +470,14 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     assert "the descent arcs weigh as a set 0.2 of the cost" in readme
     assert "40 samples spread evenly from release to contact" in readme
     assert "the network runs 3 LM iterations per member" in readme
-    assert "| network-best | the same refit, no descents | " in readme
+    assert (
+        f"| network-best | the same refit, no descents | {net['exterior_control']:.3g} | "
+        f"{net['deep_control']:.3g} | {net['deepest_bin_control']:.3g} |"
+    ) in readme
+    # the control's own fit is recorded: the orbital arcs only, the same budget
+    control = fits["network-best"]["control"]
+    assert control["n_arcs"] == fits["network-best"]["n_arcs"] - 2 and control["iterations"] == 9
+    assert "its control (no descents):" in readme and "control" not in fits["sh2"]
     # the control needs descents to leave out
     refused = runner.invoke(app, [*args[:-2], "--descents", "0", "-o", str(tmp_path / "x")])
     assert refused.exit_code == 2 and "--descent-control refits without the descents" in (

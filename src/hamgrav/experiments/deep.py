@@ -633,15 +633,23 @@ class DeepExperiment(Experiment):
                         descent_idx, validate=False, solver=solver, arc_weights=weights
                     )
                     if control is not None:
-                        control.add(none, validate=False, solver=solver)
+                        lap("descent_refits")
+                        control_record = control.add(none, validate=False, solver=solver)
                 else:
                     record = run.add(descent_idx, arc_weights=weights)
                     if control is not None:
-                        control.add(none)
+                        lap("descent_refits")
+                        control_record = control.add(none)
                 if control is not None:
+                    lap("descent_control")
                     controls[name] = (control.estimator.model_, control.params)
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
+                if control is not None:
+                    descent_fits[name]["control"] = {
+                        "n_arcs": control_record.n_arcs,
+                        **_fit_record(control_record),
+                    }
                 if weights is not None:
                     # the weights the fit ran with, as its solver recorded them
                     descent_fits[name]["descent_weight"] = significant(weights[descent_idx[0]])

@@ -436,7 +436,8 @@ def _descents_section(report: dict, net: str) -> list[str]:
             "",
             "The control row (--descent-control) runs the network's refit from the same "
             "stage-6 fit with the same solver and budget but no descent arcs: what the refit "
-            "alone moves, apart from what the descents bring.",
+            "alone moves, apart from what the descents bring (without --descent-iterations "
+            "it validates on the orbital hold-outs alone, having no descent to hold out).",
         ]
     fits = first["descents"].get("fits", {})
     lines += ["", "Refits on the descents (first repetition):", ""]
@@ -451,6 +452,12 @@ def _descents_section(report: dict, net: str) -> list[str]:
             line += f", cost on the {f['checked_on']} {f['relative_cost']:.3g} of no correction's"
         if f.get("descent_weight") is not None:
             line += f", each descent arc weighing {f['descent_weight']:.3g}"
+        if f.get("control"):
+            c = f["control"]
+            line += (
+                f"; its control (no descents): {c['n_arcs']} arcs, {c['outcome']}, "
+                f"{c['iterations']} iterations, {c['wall_s']:.1f} s"
+            )
         lines.append(line)
     with_descents = [r for r in reps if "descents" in r]
     restarts = {
