@@ -614,42 +614,36 @@ class DeepExperiment(Experiment):
                     if config.descent_share
                     else None
                 )
-                # the same refit with no new arcs, from the same fit (descent_control)
-                control = run.fork() if config.descent_control and name == NETWORK else None
-                none = np.zeros(0, dtype=int)
-                if config.descent_iterations:
-                    # all descents trained, no validation stop: the network runs a fixed
-                    # budget, SH its own solver to convergence
-                    solver = (
-                        replace(
+                # with descent_iterations all descents are trained, with no validation stop:
+                # the network runs a fixed budget, SH its own solver to convergence
+                stage = (
+                    {
+                        "validate": False,
+                        "solver": replace(
                             settings["warm_solver"],
                             max_iter=config.descent_iterations,
                             patience=None,
                         )
                         if name == NETWORK
-                        else None
-                    )
-                    record = run.add(
-                        descent_idx, validate=False, solver=solver, arc_weights=weights
-                    )
-                    if control is not None:
-                        lap("descent_refits")
-                        control_record = control.add(none, validate=False, solver=solver)
-                else:
-                    record = run.add(descent_idx, arc_weights=weights)
-                    if control is not None:
-                        lap("descent_refits")
-                        control_record = control.add(none)
-                if control is not None:
-                    lap("descent_control")
-                    controls[name] = (control.estimator.model_, control.params)
+                        else None,
+                    }
+                    if config.descent_iterations
+                    else {}
+                )
+                # the same refit with no new arcs, from the same fit (descent_control)
+                control = run.fork() if config.descent_control and name == NETWORK else None
+                record = run.add(descent_idx, arc_weights=weights, **stage)
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
                 if control is not None:
+                    lap("descent_refits")
+                    control_record = control.add(np.zeros(0, dtype=int), **stage)
+                    controls[name] = (control.estimator.model_, control.params)
                     descent_fits[name]["control"] = {
                         "n_arcs": control_record.n_arcs,
                         **_fit_record(control_record),
                     }
+                    lap("descent_control")
                 if weights is not None:
                     # the weights the fit ran with, as its solver recorded them
                     descent_fits[name]["descent_weight"] = significant(weights[descent_idx[0]])

@@ -122,7 +122,7 @@ class ContinualFit:
         # the run's arcs change only once the stage is fitted: a refused or failed stage
         # leaves the run as it was
         held_out = self._held_out
-        if validate and len(new) and estimator.holdout_fraction > 0:
+        if validate and estimator.holdout_fraction > 0:
             _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
             held_out = np.union1d(held_out, new[val])
         seen = np.concatenate([self._seen, new])
