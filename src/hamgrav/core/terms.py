@@ -373,6 +373,17 @@ class NeuralPotential(GravityTerm):
             blocks.append(np.concatenate(weights + [np.zeros(sum(s[1:]))]))
         return np.concatenate(blocks)
 
+    def without_output(self, params: np.ndarray) -> np.ndarray:
+        """A copy of ``params`` (n_params,) with every member's output weights zero, so that
+        NN is zero whatever the hidden layers: a start at no correction (the known part
+        alone) that keeps the hidden layers' seeded variety. The output bias stays as given
+        (zero in :meth:`initial_params`)."""
+        params = np.array(params, dtype=float)
+        last = self.layer_sizes[-2] * self.layer_sizes[-1]
+        for block in self.split_members(params):  # views into params
+            block[self.n_weights - last : self.n_weights] = 0.0
+        return params
+
     def last_bias_index(self) -> int:
         """Index of the (last member's) output bias in the parameter layout."""
         return self.n_params - 1

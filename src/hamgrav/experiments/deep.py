@@ -68,7 +68,7 @@ from ..core.arcs import Arcs, join_arcs, sample_radii
 from ..errors import InputError
 from ..fit.continual import ContinualFit
 from ..fit.design import d_optimal_campaign, orbit_plans
-from ..fit.estimator import NETWORK_WARM_SOLVER
+from ..fit.estimator import NETWORK_STARTS, NETWORK_WARM_SOLVER
 from ..fit.weights import share_weights
 from ..report.deep import (
     bins_figure,
@@ -206,9 +206,20 @@ class DeepCampaignConfig(CampaignConfig):
         "at constant density as mascons; the network and SH carry the rest, and the prior "
         "alone is scored too).",
     )
+    network_start: str = option(
+        "random",
+        "Where the network's fits from scratch start: 'random' (seeded Glorot weights) or "
+        "'zero-output' (the same with the output weights zero: no correction, the known "
+        "part alone, at the start).",
+    )
 
     def check(self) -> None:
         super().check()
+        if self.network_start not in NETWORK_STARTS:
+            raise InputError(
+                f"{label('network_start')} must be one of {', '.join(NETWORK_STARTS)}, "
+                f"got {self.network_start!r}"
+            )
         if self.prior not in PRIORS:
             raise InputError(
                 f"{label('prior')} must be one of {', '.join(PRIORS)}, got {self.prior!r}"
@@ -570,7 +581,13 @@ class DeepExperiment(Experiment):
             lap("descents_simulate")
         arriving = [all_arcs.arcs_of(g) for g in groups]
         known = {"prior": "shape"} if config.prior == "shape" else {}
-        best = network_best(config.hidden, config.lm_iterations, harmonic=config.harmonic, **known)
+        best = network_best(
+            config.hidden,
+            config.lm_iterations,
+            harmonic=config.harmonic,
+            network_start=config.network_start,
+            **known,
+        )
         best["warm_solver"] = replace(
             best["warm_solver"], max_iter=config.warm_iterations, validation_gate=config.warm_gate
         )

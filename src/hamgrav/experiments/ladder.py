@@ -307,13 +307,21 @@ class DeepLadderExperiment(Experiment):
         known = {"prior": "shape"} if config.prior == "shape" else {}
         rows = {
             "network": network_best(
-                config.hidden, config.lm_iterations, harmonic=config.harmonic, **known
+                config.hidden,
+                config.lm_iterations,
+                harmonic=config.harmonic,
+                network_start=config.network_start,
+                **known,
             ),
             f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree, **known},
         }
         if config.adam_rungs:
             rows["network-adam"] = preset(
-                "network", hidden=config.hidden, adam_steps=config.adam_steps, **known
+                "network",
+                hidden=config.hidden,
+                adam_steps=config.adam_steps,
+                network_start=config.network_start,
+                **known,
             )
         ladder, fits = {}, {}
 

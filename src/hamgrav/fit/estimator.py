@@ -156,6 +156,10 @@ CV_KAULA_ALPHAS = (*sorted(KAULA_ALPHAS, reverse=True), 0.0)
 #: decade below network-best's 1e-5 and two above it.
 CV_HARMONIC_WEIGHTS = (1e-3, 1e-4, 1e-5, 1e-6)
 
+#: Where a network's fit from scratch starts (``network_start``): seeded random weights, or
+#: the same with the output weights zero (no correction at the start).
+NETWORK_STARTS = ("random", "zero-output")
+
 #: The cross-validation of each choice when the estimator names none: (group, rule). SH
 #: degree and Kaula weight: random folds of whole arcs, the one-standard-error rule (on the
 #: 112-arc Itokawa campaign never worse than no correction on the shells in 8 draws,
@@ -437,6 +441,11 @@ class GravityEstimator:
             the lowest held-out cost) or "lowest" (see :mod:`hamgrav.fit.selection`). None:
             each choice's own (:data:`CV_DEFAULTS`: the lowest for the harmonic weight,
             one standard error otherwise).
+        network_start: where a network's fit from scratch starts: "random" (Glorot-uniform
+            weights, zero biases, seeded: NN starts as a random function) or "zero-output"
+            (the same with the output weights zero: the fit starts at no correction, the
+            known part alone, so with a shape prior it never starts worse than the prior;
+            the hidden layers keep their seeded variety). Warm starts start from ``init``.
         client: a ``dask.distributed`` Client: the fit's sums over arcs (costs, gradient,
             normal equations) run on its workers, which hold the arcs in chunks
             (:mod:`hamgrav.fit.distributed`); the numbers equal an in-process fit's to
@@ -477,6 +486,7 @@ class GravityEstimator:
         folds: int = 5,
         cv_group: str | None = None,
         cv_rule: str | None = None,
+        network_start: str = "random",
         client=None,
     ):
         self.term = term
@@ -506,6 +516,7 @@ class GravityEstimator:
         self.folds = folds
         self.cv_group = cv_group
         self.cv_rule = cv_rule
+        self.network_start = network_start
         self.client = client
 
     # ----------------------------------------------------------------- decisions, one place
@@ -770,7 +781,20 @@ class GravityEstimator:
         default the estimator's), then each trajectory's per-trajectory defaults when they
         are estimated."""
         seed = self.seed if seed is None else seed
+        if self.network_start not in NETWORK_STARTS:
+            raise InputError(
+                f"network_start must be one of {', '.join(NETWORK_STARTS)}, got "
+                f"{self.network_start!r}"
+            )
         theta = model.learnable.initial_params(seed) if model.learnable else np.zeros(0)
+        if self.network_start == "zero-output":
+            if not isinstance(model.learnable, NeuralPotential):
+                term = "none" if model.learnable is None else model.learnable.title
+                raise InputError(
+                    "network_start 'zero-output' starts a network at no correction; the "
+                    f"learnable term is {term}: leave network_start 'random'"
+                )
+            theta = model.learnable.without_output(theta)
         if self.estimate_trajectory_params:
             one = np.concatenate([t.initial_trajectory_params() for t in model.per_trajectory])
             theta = np.concatenate([theta, np.tile(one, arcs.n_trajectories)])
