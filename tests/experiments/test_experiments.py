@@ -534,6 +534,17 @@ def test_deep_tiny_on_the_shape_prior(tmp_path):
     assert "every model on the imaged shape at constant density" in readme
     assert f"| the shape prior alone | {alone['exterior']:.3g} | {alone['deep']:.3g} |" in readme
     assert "| the shape prior alone |" not in (tmp_path / "none" / "README.md").read_text()
+    assert "network_start" not in rep["fits"]["network-best"]
+    # the network can start on the prior alone: its output weights zero at the first stage
+    out = tmp_path / "zero"
+    result = runner.invoke(
+        app, [*args, "--prior", "shape", "--network-start", "zero-output", "-o", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert data["config"]["network_start"] == "zero-output"
+    assert data["repetitions"][0]["fits"]["network-best"]["network_start"] == "zero-output"
+    assert data["repetitions"][0]["prior_alone"] == rep["prior_alone"]
 
 
 def test_swarm_tiny(tmp_path):

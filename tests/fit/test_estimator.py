@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hamgrav.core.model import Model
+from hamgrav.core.model import Model, evaluate_field
 from hamgrav.core.problem import ArcProblem
 from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
 from hamgrav.errors import HamgravWarning, InputError
@@ -667,3 +667,50 @@ def test_arcs_inside_the_series_sphere_are_flagged(small_arcs, synthetic_truth):
     assert flagged["of"] == small_arcs.n_arcs
     assert flagged["arcs"] == np.count_nonzero(lowest < radius)
     assert flagged["lowest"] == pytest.approx(lowest.min() / radius)
+
+
+def test_a_network_can_start_at_no_correction(small_arcs, synthetic_truth):
+    settings = {
+        "term": "network",
+        "hidden": (4, 3),
+        "members": 2,
+        "solver": LevenbergMarquardt(max_iter=2),
+        "body": synthetic_truth.body,
+        "validation_fraction": 0.0,
+    }
+    zero = GravityEstimator(network_start="zero-output", **settings)
+    model, _ = zero.build_model(small_arcs)
+    random = GravityEstimator(**settings).initial_params(model, small_arcs)
+    start = zero.initial_params(model, small_arcs)
+    # the same seeded hidden layers; each member's 3 output weights zero, nothing else changed
+    term = model.learnable
+    outputs = [k * term.member_params + term.n_weights - 3 + j for k in (0, 1) for j in range(3)]
+    assert np.flatnonzero(start != random).tolist() == outputs
+    assert np.all(start[outputs] == 0.0) and np.all(random[outputs] != 0.0)
+    points = np.array([[1.5, 0.2, -0.3], [0.1, -2.0, 0.7], [0.0, 0.9, 1.1]])
+    potential, acceleration = evaluate_field(model, start, points)
+    assert np.all(potential == 0.0) and np.all(acceleration == 0.0)
+    assert np.all(evaluate_field(model, random, points)[0] != 0.0)
+    # so the fit starts at the known part's own cost, and its first step moves the outputs
+    zero.fit(small_arcs)
+    problem = zero._problem(model, small_arcs)
+    assert zero.result_.initial_cost == pytest.approx(
+        problem.cost(np.zeros(problem.n_params)), rel=1e-12
+    )
+    assert zero.result_.cost < zero.result_.initial_cost
+    assert np.all(zero.params_[outputs] != 0.0)
+    assert zero.fitted_.solver["network_start"] == "zero-output"
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"term": "network", "network_start": "zeros"}, "must be one of random, zero-output"),
+        ({"term": "sh", "degree": 2, "network_start": "zero-output"}, "leave network_start"),
+    ],
+)
+def test_a_network_start_that_does_not_apply_is_refused(small_arcs, settings, message):
+    est = GravityEstimator(**settings)
+    model, _ = est.build_model(small_arcs)
+    with pytest.raises(InputError, match=message):
+        est.initial_params(model, small_arcs)

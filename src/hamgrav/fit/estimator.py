@@ -1031,6 +1031,8 @@ class GravityEstimator:
                 "n_not_one": int(np.count_nonzero(arc_weights != 1.0)),
                 "values": arc_weights.tolist(),
             }
+        if self.network_start != "random":  # recorded when not the default, as arc weights
+            solver_info["network_start"] = self.network_start
         if members is not None:
             solver_info["members"] = members
         if problem.regulariser is not None:
