@@ -525,11 +525,10 @@ def adjoint_gradient(
                 pars[n_shared:] = own_pars[:, b * width : (b + 1) * width]
             out[b], stopped[b * width : (b + 1) * width] = _propagate_grid(ta, grids[b], max_steps)
         # the lanes' states and transition matrices at the grid, one row per lane and point
-        n_grid, n_nodes = grid.shape[1], node_times.shape[1]
-        rows = out.transpose(0, 3, 1, 2).reshape(-1, 42)
-        start = n_grid * np.arange(n_sel)[:, None]
-        samples = rows[start + at_sample[:n_sel]]  # (arcs, samples, 42)
-        at_nodes = rows[start + at_node[:n_sel]]  # (arcs, nodes, 42)
+        n_nodes = node_times.shape[1]
+        batch, lane = np.divmod(np.arange(n_sel)[:, None], width)
+        samples = out[batch, at_sample[:n_sel], :, lane]  # (arcs, samples, 42)
+        at_nodes = out[batch, at_node[:n_sel], :, lane]  # (arcs, nodes, 42)
         phi_samples = samples[..., 6:].reshape(n_sel, n_m, 6, 6)
         phi_nodes = at_nodes[..., 6:].reshape(n_sel, n_nodes, 6, 6)
         jumps = np.einsum("lkij,lki->lkj", phi_samples, kicks[sel])  # Phi_k^T dJ/dx_k
