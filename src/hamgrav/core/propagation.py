@@ -524,7 +524,7 @@ def adjoint_gradient(
             if own_pars.size:
                 pars[n_shared:] = own_pars[:, b * width : (b + 1) * width]
             out[b], stopped[b * width : (b + 1) * width] = _propagate_grid(ta, grids[b], max_steps)
-        # the lanes' states and transition matrices at the grid, one row per lane and point
+        # each arc's states and transition matrices at its samples and its nodes, from its lane
         n_nodes = node_times.shape[1]
         batch, lane = np.divmod(np.arange(n_sel)[:, None], width)
         samples = out[batch, at_sample[:n_sel], :, lane]  # (arcs, samples, 42)
