@@ -39,6 +39,7 @@ BEFORE_THE_OPTION = {
     "oracle_iterations": 40,
     "descent_control": False,
     "descent_share": 0.0,
+    "descent_validation": 0.0,
     "network_start": "random",
 }
 

@@ -230,6 +230,19 @@ def test_descent_with_both_blocks_tiny(tmp_path):
             ["deep", "--descents", "0", "--descent-share", "0.2"],
             "--descent-share weighs the descents",
         ),
+        (
+            ["deep", "--descent-validation", "0.2"],
+            "--descent-validation holds out a fraction in (0, 0.5) of the descents of a "
+            "fixed-budget refit: give --descent-iterations above 0",
+        ),
+        (
+            ["deep", "--descent-iterations", "5", "--descent-validation", "0.5"],
+            "--descent-validation holds out a fraction in (0, 0.5)",
+        ),
+        (
+            ["deep", "--descents", "2", "--descent-iterations", "5", "--descent-validation", "0.1"],
+            "--descent-validation 0.1 of 2 descents holds none out",
+        ),
         (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
         (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
         (["descent", "--altitude-m", "-5"], "--altitude-m must be above 0, got -5.0"),
@@ -482,6 +495,38 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     refused = runner.invoke(app, [*args[:-2], "--descents", "0", "-o", str(tmp_path / "x")])
     assert refused.exit_code == 2 and "--descent-control refits without the descents" in (
         refused.output
+    )
+
+
+def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
+    out = tmp_path / "deep"
+    args = [
+        *TINY_DEEP, "--descents", "3", "--sh-degrees", "2", "--map-degrees", "2",
+        "--map-points", "11", "--descent-degrees", "2", "--descent-iterations", "3",
+        "--descent-share", "0.2", "--descent-validation", "0.34", "--random-orders", "0",
+        "--no-d-optimal", "--descent-control", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert data["config"]["descent_validation"] == 0.34
+    fits = data["repetitions"][0]["descents"]["fits"]
+    net, sh = fits["network-best"], fits["sh2"]
+    # one descent of three held out of every refit, and the refits judged on it alone
+    for f in (net, sh):
+        assert f["n_validation_descents"] == 1 and f["checked_on"] == "validation arcs"
+    # the network ran its full budget (no patience) and each member returned its best iterate
+    assert net["iterations"] == 9 and len(net["best_iterations"]) == 3
+    assert all(0 <= b <= 3 for b in net["best_iterations"])
+    # the control trains on the orbital arcs alone, and the held-out descent chooses its iterate
+    control = net["control"]
+    assert control["n_arcs"] == net["n_arcs"] - 2 and control["checked_on"] == "validation arcs"
+    assert control["iterations"] == 9 and len(control["best_iterations"]) == 3
+    # the training descents weigh at the share, the held-out one as they do
+    assert 0 < net["descent_weight"] < 1 and net["arc_weights"]["n_not_one"] == 3
+    readme = (out / "README.md").read_text()
+    assert "1 of the descents (seeded) held out of every refit as its only validation set" in (
+        readme
     )
 
 

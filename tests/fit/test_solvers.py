@@ -358,6 +358,40 @@ def test_a_stage_without_validation_trains_every_new_arc_but_no_earlier_hold_out
     assert "validation" not in second.result.members[0].history
 
 
+def test_a_stage_can_be_chosen_by_the_new_arcs_it_holds_out(small_arcs, synthetic_truth):
+    """``add(new, validation_arcs=v)``: the arcs ``v`` (among ``new``) are held out and are
+    the fit's only validation set; the earlier hold-outs are neither trained on nor vote; each
+    member returns the iterate, its start included, with the lowest cost on ``v``."""
+    est = _two_member_network(synthetic_truth, hidden=4, max_iter=2)
+    run = ContinualFit(est, small_arcs)
+    first = run.add(np.arange(0, 5))
+    assert len(first.validation) == 1
+    fitted = []
+    fit = est.fit
+
+    def spy(arcs, **kw):
+        fitted.append((arcs, kw))
+        return fit(arcs, **kw)
+
+    est.fit = spy
+    solver = LevenbergMarquardt(max_iter=4, rtol=0.0)
+    voting = np.array([6, 8])
+    second = run.add(np.arange(5, 9), validation_arcs=voting, solver=solver)
+    ((arcs, kw),) = fitted
+    np.testing.assert_array_equal(second.validation, np.union1d(first.validation, voting))
+    kept = np.setdiff1d(np.arange(9), first.validation)
+    np.testing.assert_array_equal(arcs.times, small_arcs.times[kept])
+    np.testing.assert_array_equal(kept[kw["validation"]], voting)
+    assert second.checked_on == "validation arcs"
+    for member in second.result.members:
+        history = member.history["validation"]
+        assert len(history) == 5 and member.best_iteration == int(np.argmin(history))
+    # the arcs held out must be among the stage's new ones, with validation on
+    for bad, validate in (([3], True), ([], True), ([6], False)):
+        with pytest.raises(InputError, match="validation_arcs must be a nonempty subset"):
+            run.fork().add(np.arange(5, 9), validation_arcs=bad, validate=validate)
+
+
 def test_a_forked_run_continues_on_its_own(small_arcs, synthetic_truth):
     """``fork()``: a stage added to the fork gives what the same stage added to the run
     gives (same parameters to rounding, same arcs and hold-outs), and neither changes the

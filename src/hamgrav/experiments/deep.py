@@ -68,7 +68,7 @@ from ..core.arcs import Arcs, join_arcs, sample_radii
 from ..errors import InputError
 from ..fit.continual import ContinualFit
 from ..fit.design import d_optimal_campaign, orbit_plans
-from ..fit.estimator import NETWORK_STARTS, NETWORK_WARM_SOLVER
+from ..fit.estimator import NETWORK_STARTS, NETWORK_WARM_SOLVER, validation_split
 from ..fit.weights import share_weights
 from ..report.deep import (
     bins_figure,
@@ -284,6 +284,14 @@ class DeepExperimentConfig(DeepCampaignConfig):
         "correction leaves on them and on the orbital training arcs "
         "(hamgrav.fit.weights.share_weights; the orbital arcs keep weight 1).",
     )
+    descent_validation: float = option(
+        0.0,
+        "With descent_iterations, 0: every descent trains and each refit returns its last "
+        "iterate; f in (0, 0.5): that fraction of the descents (seeded by the seed) is held "
+        "out of every descent refit (and the control) and is its only validation set: the "
+        "refit returns the iterate, the stage-6 fit included, with the lowest cost on them "
+        "(the network with no validation patience or gate).",
+    )
     descent_control: bool = option(
         False,
         "Also run the network's descent refit from the same stage-6 fit with no descent "
@@ -319,6 +327,20 @@ class DeepExperimentConfig(DeepCampaignConfig):
             raise InputError(
                 f"{label('descent_control')} refits without the descents: give "
                 f"{label('descents')} above 0, or leave it off"
+            )
+        if self.descent_validation and not (
+            self.descent_iterations and 0 < self.descent_validation < 0.5
+        ):
+            raise InputError(
+                f"{label('descent_validation')} holds out a fraction in (0, 0.5) of the "
+                f"descents of a fixed-budget refit: give {label('descent_iterations')} above 0 "
+                f"and a fraction such as 0.2; got {self.descent_validation}"
+            )
+        if self.descent_validation and round(self.descent_validation * self.descents) < 1:
+            raise InputError(
+                f"{label('descent_validation')} {self.descent_validation} of "
+                f"{self.descents} descents holds none out: give more descents or a larger "
+                "fraction"
             )
         if self.descent_share and not self.descents:
             raise InputError(
@@ -401,13 +423,16 @@ def _prior_alone(arcs: Arcs, truth: Truth, shells: dict, config: DeepCampaignCon
     }
 
 
-def _descent_weights(est, run, arcs: Arcs, descent_idx: np.ndarray, share: float) -> np.ndarray:
-    """Arc weights (one per arc of ``arcs``) of the descent refit: the descents at
-    ``share`` of the cost against the orbital arcs the run trains on
-    (:func:`hamgrav.fit.weights.share_weights`, by ``est``'s no-correction costs)."""
+def _descent_weights(
+    est, run, arcs: Arcs, descent_idx: np.ndarray, share: float, held_out=()
+) -> np.ndarray:
+    """Arc weights (one per arc of ``arcs``) of the descent refit: the descents it trains on
+    (``descent_idx`` but ``held_out``) at ``share`` of the cost against the orbital arcs the
+    run trains on (:func:`hamgrav.fit.weights.share_weights`, by ``est``'s no-correction
+    costs); every descent, held out or not, gets that weight."""
     last = run.records[-1]
     trained = np.setdiff1d(last.arcs, last.validation)
-    fitted = np.concatenate([trained, descent_idx])
+    fitted = np.concatenate([trained, np.setdiff1d(descent_idx, held_out)])
     costs = est.no_correction_costs(arcs.subset(fitted))
     local = share_weights(costs, np.isin(fitted, descent_idx), share)
     weights = np.ones(arcs.n_arcs)
@@ -568,10 +593,14 @@ class DeepExperiment(Experiment):
         tracking = config.campaign(ctx.seed).tracking
         lap("simulate")
         all_arcs, descent_idx, descents = arcs, None, None
+        voting = np.zeros(0, dtype=int)  # descents held out to choose the refits' iterates
         if config.descents:
             desc = campaign_descents(truth, config, ctx.seed)
             all_arcs = join_arcs(arcs, desc)
             descent_idx = np.arange(arcs.n_arcs, all_arcs.n_arcs)
+            if config.descent_validation:
+                _, held = validation_split(len(descent_idx), config.descent_validation, ctx.seed)
+                voting = descent_idx[held]
             descents = _descent_record(desc, truth)
             ctx.say(
                 f"{config.descents} descents, {descents['duration_s']['min']:.0f}-"
@@ -627,19 +656,22 @@ class DeepExperiment(Experiment):
             lap("fixed_order")
             if name in refit:
                 weights = (
-                    _descent_weights(est, run, all_arcs, descent_idx, config.descent_share)
+                    _descent_weights(est, run, all_arcs, descent_idx, config.descent_share, voting)
                     if config.descent_share
                     else None
                 )
-                # with descent_iterations all descents are trained, with no validation stop:
-                # the network runs a fixed budget, SH its own solver to convergence
+                # with descent_iterations the network runs a fixed budget, SH its own solver
+                # to convergence; all descents train (no validation stop), or the held-out
+                # ones (descent_validation) alone choose the iterate
                 stage = (
                     {
-                        "validate": False,
+                        "validate": bool(len(voting)),
                         "solver": replace(
                             settings["warm_solver"],
                             max_iter=config.descent_iterations,
                             patience=None,
+                            validation_gate=settings["warm_solver"].validation_gate
+                            and not len(voting),
                         )
                         if name == NETWORK
                         else None,
@@ -647,19 +679,30 @@ class DeepExperiment(Experiment):
                     if config.descent_iterations
                     else {}
                 )
-                # the same refit with no new arcs, from the same fit (descent_control)
+                held = {"validation_arcs": voting} if len(voting) else {}
+                # the same refit with no new arcs, from the same fit (descent_control); with
+                # held-out descents they still choose its iterate, and none trains
                 control = run.fork() if config.descent_control and name == NETWORK else None
-                record = run.add(descent_idx, arc_weights=weights, **stage)
+                record = run.add(descent_idx, arc_weights=weights, **held, **stage)
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
+                if len(voting):
+                    descent_fits[name]["n_validation_descents"] = len(voting)
+                    descent_fits[name]["best_iterations"] = [
+                        m.best_iteration for m in record.result.members if m is not None
+                    ] or [record.result.best_iteration]
                 if control is not None:
                     lap("descent_refits")
-                    control_record = control.add(np.zeros(0, dtype=int), **stage)
+                    control_record = control.add(voting, **held, **stage)
                     controls[name] = (control.estimator.model_, control.params)
                     descent_fits[name]["control"] = {
                         "n_arcs": control_record.n_arcs,
                         **_fit_record(control_record),
                     }
+                    if len(voting):
+                        descent_fits[name]["control"]["best_iterations"] = [
+                            m.best_iteration for m in control_record.result.members if m is not None
+                        ] or [control_record.result.best_iteration]
                     lap("descent_control")
                 if weights is not None:
                     # the weights the fit ran with, as its solver recorded them

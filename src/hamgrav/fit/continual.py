@@ -99,6 +99,7 @@ class ContinualFit:
         validate: bool = True,
         solver: Solver | None = None,
         arc_weights: np.ndarray | None = None,
+        validation_arcs: Sequence[int] | None = None,
     ) -> StageRecord:
         """Fit the next stage, which brings the arcs ``new`` (indices into ``arcs``). The
         returned record's result holds the stage's normal equations (n_params^2 per member),
@@ -108,7 +109,11 @@ class ContinualFit:
         iterate (no validation stop or choice); the arcs held out at earlier stages stay out
         of training. ``solver`` replaces the estimator's (warm) solver for this stage.
         ``arc_weights`` (one per arc of ``arcs``): each arc's weight in this stage's cost
-        (:meth:`GravityEstimator.fit`); a stage without them weighs every arc 1."""
+        (:meth:`GravityEstimator.fit`); a stage without them weighs every arc 1.
+        ``validation_arcs`` (among ``new``): the arcs this stage holds out, and its only
+        validation set, in place of the module's rule: the fit returns the iterate (its start
+        included) with the lowest cost on them, while the arcs held out at earlier stages stay
+        out of training without a say (e.g. descents that should decide a refit on them)."""
         if arc_weights is not None:
             arc_weights = np.asarray(arc_weights, dtype=float)
             if arc_weights.shape != (self.arcs.n_arcs,):
@@ -122,19 +127,31 @@ class ContinualFit:
         # the run's arcs change only once the stage is fitted: a refused or failed stage
         # leaves the run as it was
         held_out = self._held_out
-        if validate and estimator.holdout_fraction > 0:
-            _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
-            held_out = np.union1d(held_out, new[val])
         seen = np.concatenate([self._seen, new])
-        # without validation the fit sees only its training arcs (so it has none to hold out)
-        fitted = seen if validate else seen[~np.isin(seen, held_out)]
+        if validation_arcs is not None:
+            voting = np.unique(np.asarray(validation_arcs, dtype=int))
+            if not validate or not len(voting) or not np.all(np.isin(voting, new)):
+                raise InputError(
+                    "validation_arcs must be a nonempty subset of the stage's new arcs, with "
+                    f"validate on; got {voting.tolist()} for new arcs {new.tolist()}"
+                )
+            # the earlier hold-outs stay out of training; only the given arcs vote
+            fitted = seen[~np.isin(seen, held_out)]
+            held_out = np.union1d(held_out, voting)
+            local_val = np.flatnonzero(np.isin(fitted, voting))
+        else:
+            if validate and estimator.holdout_fraction > 0:
+                _, val = validation_split(len(new), estimator.holdout_fraction, estimator.seed + k)
+                held_out = np.union1d(held_out, new[val])
+            # without validation the fit sees only its training arcs (none to hold out)
+            fitted = seen if validate else seen[~np.isin(seen, held_out)]
+            if validate:
+                local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
+            else:
+                local_val = np.zeros(0, dtype=int)
         subset = self.arcs.subset(fitted)
         if arc_weights is not None:
             arc_weights = arc_weights[fitted]
-        if validate:
-            local_val = np.flatnonzero(np.isin(seen, held_out)) if len(held_out) else None
-        else:
-            local_val = np.zeros(0, dtype=int)
         theta = self.params
         warm = self.warm_start and theta is not None
         # the previous stage's training arcs keep their indices (arcs are appended), so its

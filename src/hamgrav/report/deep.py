@@ -388,7 +388,16 @@ def _descents_section(report: dict, net: str) -> list[str]:
     else:
         tracked = "40 samples at 14 s ending at contact"
     iterations = cfg.get("descent_iterations", 0)
-    if iterations:
+    held = cfg.get("descent_validation", 0.0)
+    if iterations and held:
+        refit = (
+            f"{round(held * d['n'])} of the descents (seeded) held out of every refit as its only "
+            "validation set, the rest trained; each refit returns the iterate, the stage-6 fit "
+            "included, with the lowest cost on the held-out descents; the earlier hold-outs "
+            f"stay untrained; the network runs {iterations} LM iterations per member with no "
+            "patience or gate, SH its own solver"
+        )
+    elif iterations:
         refit = (
             "every descent trained, with no validation stop; the earlier hold-outs stay "
             f"untrained; the network runs {iterations} LM iterations per member, SH its own "
