@@ -525,9 +525,12 @@ def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
     # the training descents weigh at the share, the held-out one as they do
     assert 0 < net["descent_weight"] < 1 and net["arc_weights"]["n_not_one"] == 3
     readme = (out / "README.md").read_text()
-    assert "1 of the descents (seeded) held out of every refit as its only validation set" in (
-        readme
-    )
+    assert "1 of the descents (seeded) held out of every refit, the rest trained" in readme
+    assert "SH its own solver" in readme and "best_iterations" not in sh
+    # the iterates chosen, by repetition, and the first repetition's refit and control
+    its = ", ".join(map(str, net["best_iterations"]))
+    assert f"- network-best: {its}\n" in readme
+    assert f"iterate returned {its} (by member); its control" in readme
 
 
 def test_deep_tiny_without_the_later_parts(tmp_path):

@@ -288,9 +288,9 @@ class DeepExperimentConfig(DeepCampaignConfig):
         0.0,
         "With descent_iterations, 0: every descent trains and each refit returns its last "
         "iterate; f in (0, 0.5): that fraction of the descents (seeded by the seed) is held "
-        "out of every descent refit (and the control) and is its only validation set: the "
-        "refit returns the iterate, the stage-6 fit included, with the lowest cost on them "
-        "(the network with no validation patience or gate).",
+        "out of every descent refit and is the network's only validation set: its refit (and "
+        "the control) returns the iterate, the stage-6 fit included, with the lowest cost on "
+        "them (no validation patience or gate); SH runs its own solver on the rest.",
     )
     descent_control: bool = option(
         False,
@@ -688,6 +688,7 @@ class DeepExperiment(Experiment):
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
                 if len(voting):
                     descent_fits[name]["n_validation_descents"] = len(voting)
+                if len(voting) and name == NETWORK:
                     descent_fits[name]["best_iterations"] = [
                         m.best_iteration for m in record.result.members if m is not None
                     ] or [record.result.best_iteration]

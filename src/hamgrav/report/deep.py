@@ -391,11 +391,10 @@ def _descents_section(report: dict, net: str) -> list[str]:
     held = cfg.get("descent_validation", 0.0)
     if iterations and held:
         refit = (
-            f"{round(held * d['n'])} of the descents (seeded) held out of every refit as its only "
-            "validation set, the rest trained; each refit returns the iterate, the stage-6 fit "
-            "included, with the lowest cost on the held-out descents; the earlier hold-outs "
-            f"stay untrained; the network runs {iterations} LM iterations per member with no "
-            "patience or gate, SH its own solver"
+            f"{round(held * d['n'])} of the descents (seeded) held out of every refit, the rest "
+            f"trained; the network runs {iterations} LM iterations per member with no patience "
+            "or gate and returns the iterate, the stage-6 fit included, with the lowest cost on "
+            "the held-out descents, SH its own solver; the earlier hold-outs stay untrained"
         )
     elif iterations:
         refit = (
@@ -446,7 +445,9 @@ def _descents_section(report: dict, net: str) -> list[str]:
             "The control row (--descent-control) runs the network's refit from the same "
             "stage-6 fit with the same solver and budget but no descent arcs: what the refit "
             "alone moves, apart from what the descents bring (without --descent-iterations "
-            "it validates on the orbital hold-outs alone, having no descent to hold out).",
+            "it validates on the orbital hold-outs alone, having no descent to hold out; with "
+            "--descent-validation it trains on no descent and the held-out descents choose its "
+            "iterate).",
         ]
     fits = first["descents"].get("fits", {})
     lines += ["", "Refits on the descents (first repetition):", ""]
@@ -461,13 +462,31 @@ def _descents_section(report: dict, net: str) -> list[str]:
             line += f", cost on the {f['checked_on']} {f['relative_cost']:.3g} of no correction's"
         if f.get("descent_weight") is not None:
             line += f", each descent arc weighing {f['descent_weight']:.3g}"
+        if f.get("best_iterations"):
+            line += ", iterate returned " + _iterates(f["best_iterations"])
         if f.get("control"):
             c = f["control"]
             line += (
                 f"; its control (no descents): {c['n_arcs']} arcs, {c['outcome']}, "
                 f"{c['iterations']} iterations, {c['wall_s']:.1f} s"
             )
+            if c.get("best_iterations"):
+                line += ", iterate returned " + _iterates(c["best_iterations"])
         lines.append(line)
+    chosen = {
+        m: [r["descents"]["fits"][m].get("best_iterations") for r in reps if "descents" in r]
+        for m in fits
+    }
+    if any(all(v) for v in chosen.values()):
+        lines += [
+            "",
+            "The iterate each refit returned (the lowest cost on the held-out descents; 0 is "
+            "the stage-6 fit), by repetition:",
+            "",
+        ]
+        for m, by_rep in chosen.items():
+            if all(by_rep):
+                lines.append(f"- {m}: " + "; ".join(", ".join(map(str, v)) for v in by_rep))
     with_descents = [r for r in reps if "descents" in r]
     restarts = {
         m: sum(not r["descents"]["fits"][m]["warm_started"] for r in with_descents) for m in fits
@@ -688,3 +707,8 @@ def orders_figure(report: dict) -> Figure:
 def _shell_range(config: dict) -> str:
     shells = config["shells_rb"]
     return f"{min(shells):g}-{max(shells):g}"
+
+
+def _iterates(best: list[int]) -> str:
+    """The iterates an ensemble's members returned, e.g. "0, 37, 80 (by member)"."""
+    return ", ".join(map(str, best)) + (" (by member)" if len(best) > 1 else "")
