@@ -531,6 +531,8 @@ def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
     its = ", ".join(map(str, net["best_iterations"]))
     assert f"- network-best: {its}\n" in readme
     assert f"iterate returned {its} (by member); its control" in readme
+    sh_line = next(line for line in readme.splitlines() if line.startswith("- sh2: "))
+    assert "iterate returned" not in sh_line and "held-out" not in sh_line
 
 
 def test_deep_tiny_without_the_later_parts(tmp_path):

@@ -462,7 +462,7 @@ def _descents_section(report: dict, net: str) -> list[str]:
             line += f", cost on the {f['checked_on']} {f['relative_cost']:.3g} of no correction's"
         if f.get("descent_weight") is not None:
             line += f", each descent arc weighing {f['descent_weight']:.3g}"
-        if f.get("best_iterations"):
+        if f.get("best_iterations") and _selects(first, m):
             line += ", iterate returned " + _iterates(f["best_iterations"])
         if f.get("control"):
             c = f["control"]
@@ -476,6 +476,7 @@ def _descents_section(report: dict, net: str) -> list[str]:
     chosen = {
         m: [r["descents"]["fits"][m].get("best_iterations") for r in reps if "descents" in r]
         for m in fits
+        if _selects(first, m)
     }
     if any(all(v) for v in chosen.values()):
         lines += [
@@ -712,3 +713,9 @@ def _shell_range(config: dict) -> str:
 def _iterates(best: list[int]) -> str:
     """The iterates an ensemble's members returned, e.g. "0, 37, 80 (by member)"."""
     return ", ".join(map(str, best)) + (" (by member)" if len(best) > 1 else "")
+
+
+def _selects(rep: dict, model: str) -> bool:
+    """Whether ``model``'s solver chooses its iterate on validation arcs (the network; SH
+    runs to convergence and only leaves them out), as the repetition's fit records it."""
+    return bool(rep.get("fits", {}).get(model, {}).get("select_on_validation"))
