@@ -491,6 +491,8 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     control = fits["network-best"]["control"]
     assert control["n_arcs"] == fits["network-best"]["n_arcs"] - 2 and control["iterations"] == 9
     assert "its control (no descents):" in readme and "control" not in fits["sh2"]
+    assert "without --descent-iterations it validates on the orbital hold-outs" in readme
+    assert "--descent-validation" not in readme
     # the control needs descents to leave out
     refused = runner.invoke(app, [*args[:-2], "--descents", "0", "-o", str(tmp_path / "x")])
     assert refused.exit_code == 2 and "--descent-control refits without the descents" in (
@@ -531,6 +533,7 @@ def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
     its = ", ".join(map(str, net["best_iterations"]))
     assert f"- network-best: {its}\n" in readme
     assert f"iterate returned {its} (by member); its control" in readme
+    assert "with --descent-validation it trains on no descent" in readme
     sh_line = next(line for line in readme.splitlines() if line.startswith("- sh2: "))
     assert "iterate returned" not in sh_line and "held-out" not in sh_line
 

@@ -444,10 +444,14 @@ def _descents_section(report: dict, net: str) -> list[str]:
             "",
             "The control row (--descent-control) runs the network's refit from the same "
             "stage-6 fit with the same solver and budget but no descent arcs: what the refit "
-            "alone moves, apart from what the descents bring (without --descent-iterations "
-            "it validates on the orbital hold-outs alone, having no descent to hold out; with "
-            "--descent-validation it trains on no descent and the held-out descents choose its "
-            "iterate).",
+            "alone moves, apart from what the descents bring ("
+            + (
+                "with --descent-validation it trains on no descent and the held-out descents "
+                "choose its iterate)."
+                if held
+                else "without --descent-iterations it validates on the orbital hold-outs alone, "
+                "having no descent to hold out)."
+            ),
         ]
     fits = first["descents"].get("fits", {})
     lines += ["", "Refits on the descents (first repetition):", ""]
