@@ -328,6 +328,20 @@ def test_a_stage_weighs_its_arcs_as_given(small_arcs, synthetic_truth):
     assert est.fitted_.solver["arc_weights"]["n_not_one"] == 4
 
 
+def _record_fits(est: GravityEstimator) -> list:
+    """A list that receives (arcs, keyword arguments) of each later ``est.fit`` call, which
+    still fits."""
+    fitted = []
+    fit = est.fit
+
+    def spy(arcs, **kw):
+        fitted.append((arcs, kw))
+        return fit(arcs, **kw)
+
+    est.fit = spy
+    return fitted
+
+
 def test_a_stage_without_validation_trains_every_new_arc_but_no_earlier_hold_out(
     small_arcs, synthetic_truth
 ):
@@ -338,14 +352,7 @@ def test_a_stage_without_validation_trains_every_new_arc_but_no_earlier_hold_out
     run = ContinualFit(est, small_arcs)
     first = run.add(np.arange(0, 5))
     assert len(first.validation) == 1
-    fitted = []
-    fit = est.fit
-
-    def spy(arcs, **kw):
-        fitted.append((arcs, kw))
-        return fit(arcs, **kw)
-
-    est.fit = spy
+    fitted = _record_fits(est)
     solver = LevenbergMarquardt(max_iter=3, rtol=0.0)
     second = run.add(np.arange(5, 9), validate=False, solver=solver)
     ((arcs, kw),) = fitted
@@ -366,14 +373,7 @@ def test_a_stage_can_be_chosen_by_the_new_arcs_it_holds_out(small_arcs, syntheti
     run = ContinualFit(est, small_arcs)
     first = run.add(np.arange(0, 5))
     assert len(first.validation) == 1
-    fitted = []
-    fit = est.fit
-
-    def spy(arcs, **kw):
-        fitted.append((arcs, kw))
-        return fit(arcs, **kw)
-
-    est.fit = spy
+    fitted = _record_fits(est)
     solver = LevenbergMarquardt(max_iter=4, rtol=0.0)
     voting = np.array([6, 8])
     second = run.add(np.arange(5, 9), validation_arcs=voting, solver=solver)

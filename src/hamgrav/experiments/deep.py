@@ -440,6 +440,11 @@ def _descent_weights(
     return weights
 
 
+def _best_iterations(result) -> list[int]:
+    """The iteration each member of an ensemble's fit returned (the fit's own, unensembled)."""
+    return [m.best_iteration for m in result.members if m is not None] or [result.best_iteration]
+
+
 def _bin_summary(by_bin: dict) -> tuple[float | None, float | None]:
     """(deepest, worst) of a model's bins: the first bin holding points, and the largest."""
     values = [v for v in by_bin.values() if v is not None]
@@ -701,9 +706,9 @@ class DeepExperiment(Experiment):
                         **_fit_record(control_record),
                     }
                     if len(voting):
-                        descent_fits[name]["control"]["best_iterations"] = [
-                            m.best_iteration for m in control_record.result.members if m is not None
-                        ] or [control_record.result.best_iteration]
+                        descent_fits[name]["control"]["best_iterations"] = _best_iterations(
+                            control_record.result
+                        )
                     lap("descent_control")
                 if weights is not None:
                     # the weights the fit ran with, as its solver recorded them
