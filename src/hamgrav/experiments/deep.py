@@ -66,6 +66,7 @@ from ..bodies.evaluation import (
 from ..bodies.interiors import Truth
 from ..core.arcs import Arcs, join_arcs, sample_radii
 from ..errors import InputError
+from ..fit.anchor import AnchorSettings
 from ..fit.continual import ContinualFit
 from ..fit.design import d_optimal_campaign, orbit_plans
 from ..fit.estimator import NETWORK_STARTS, NETWORK_WARM_SOLVER, validation_split
@@ -298,6 +299,21 @@ class DeepExperimentConfig(DeepCampaignConfig):
         "arcs (same solver and budget): what the refit alone changes, scored beside the "
         "refit on the descents.",
     )
+    descent_anchor: float = option(
+        0.0,
+        "0: off; tau > 0: the network's descent refit (and the control) holds its learned "
+        "field near the stage-6 fit's, to the relative tolerance tau, at the harmonic "
+        "penalty's collocation points farther than descent_anchor_clearance_rb from every "
+        "sample of the arriving arcs (hamgrav.fit.anchor): the descents move the field "
+        "where they fly, not where they do not reach.",
+        at_least=0,
+    )
+    descent_anchor_clearance_rb: float = option(
+        0.1,
+        "With descent_anchor: collocation points within this distance [R_B] of a descent "
+        "sample are free of the anchor.",
+        at_least=0,
+    )
     random_orders: int = option(
         5,
         "Random arrival orders of the same orbits, network only, seeded by the seed (0: off).",
@@ -322,6 +338,11 @@ class DeepExperimentConfig(DeepCampaignConfig):
             raise InputError(
                 f"{label('descent_share')} must be 0 (unweighted) or lie in (0, 1), e.g. 0.2; "
                 f"got {self.descent_share}"
+            )
+        if self.descent_anchor and not self.descents:
+            raise InputError(
+                f"{label('descent_anchor')} holds the descent refit near the stage-6 fit: give "
+                f"{label('descents')} above 0, or leave it at 0"
             )
         if self.descent_control and not self.descents:
             raise InputError(
@@ -685,6 +706,11 @@ class DeepExperiment(Experiment):
                     else {}
                 )
                 held = {"validation_arcs": voting} if len(voting) else {}
+                if config.descent_anchor and name == NETWORK:
+                    held["anchor"] = AnchorSettings(
+                        config.descent_anchor,
+                        config.descent_anchor_clearance_rb * truth.body.brillouin_radius,
+                    )
                 # the same refit with no new arcs, from the same fit (descent_control); with
                 # held-out descents they still choose its iterate, and none trains
                 control = run.fork() if config.descent_control and name == NETWORK else None

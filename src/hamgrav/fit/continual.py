@@ -18,6 +18,7 @@ import numpy as np
 
 from ..core.arcs import Arcs
 from ..errors import InputError, PropagationError
+from .anchor import AnchorSettings, points_clear_of
 from .base import Solver, SolveResult
 from .estimator import GravityEstimator, validation_split
 
@@ -100,6 +101,7 @@ class ContinualFit:
         solver: Solver | None = None,
         arc_weights: np.ndarray | None = None,
         validation_arcs: Sequence[int] | None = None,
+        anchor: AnchorSettings | None = None,
     ) -> StageRecord:
         """Fit the next stage, which brings the arcs ``new`` (indices into ``arcs``). The
         returned record's result holds the stage's normal equations (n_params^2 per member),
@@ -113,7 +115,11 @@ class ContinualFit:
         ``validation_arcs`` (among ``new``): the arcs this stage holds out, and its only
         validation set, in place of the module's rule: the fit returns the iterate (its start
         included) with the lowest cost on them, while the arcs held out at earlier stages stay
-        out of training without a say (e.g. descents that should decide a refit on them)."""
+        out of training without a say (e.g. descents that should decide a refit on them).
+        ``anchor``: a warm stage's learned field is held near the previous stage's at the
+        harmonic penalty's collocation points farther than ``anchor.clearance`` from every
+        sample of the new arcs (:mod:`hamgrav.fit.anchor`); a network fit only, and refused
+        before the first stage or with ``warm_start`` off."""
         if arc_weights is not None:
             arc_weights = np.asarray(arc_weights, dtype=float)
             if arc_weights.shape != (self.arcs.n_arcs,):
@@ -154,6 +160,23 @@ class ContinualFit:
             arc_weights = arc_weights[fitted]
         theta = self.params
         warm = self.warm_start and theta is not None
+        anchored = None
+        if anchor is not None:
+            if not warm:
+                raise InputError(
+                    "the field anchor holds a stage near the previous one: fit a first stage "
+                    "(with warm_start on) before anchoring one"
+                )
+            samples = self.arcs.states[new][..., :3] if len(new) else np.zeros((0, 3))
+            points = points_clear_of(
+                estimator.collocation_points(subset), samples, anchor.clearance
+            )
+            if not len(points):
+                raise InputError(
+                    f"no collocation point lies farther than {anchor.clearance:g} (canonical) "
+                    "from the new arcs: give the anchor a smaller clearance"
+                )
+            anchored = (points, anchor.tolerance)
         # the previous stage's training arcs keep their indices (arcs are appended), so its
         # normal equations at theta are added to rather than formed again
         previous = self.records[-1].result if warm else None
@@ -166,6 +189,7 @@ class ContinualFit:
                 solver=solver,
                 warm=warm,
                 arc_weights=arc_weights,
+                anchor=anchored,
             )
         except PropagationError:
             if not warm:

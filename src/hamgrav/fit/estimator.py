@@ -42,6 +42,7 @@ from ..core.terms import GravityTerm, MasconTerm, NeuralPotential, PointMass, Sp
 from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
+from .anchor import FieldAnchor, RowRegularisers
 from .base import Outcome, Solver, SolveResult
 from .diagnostics import OVERFIT_FACTOR, constrained_parameters, diagnose, inside_expansion
 from .fitted import FittedModel
@@ -303,6 +304,19 @@ def noise_whitening(arcs: Arcs) -> np.ndarray:
     states = np.eye(6)  # row k: the state e_k; its (q, v) is column k of the map (q, p) -> (q, v)
     qv = np.concatenate([states[:, :3], momentum_to_velocity(states[:, :3], states[:, 3:])], 1)
     return qv.T / sigmas[:, None]
+
+
+def _anchored(problem, init: np.ndarray, anchor):
+    """``problem`` with the field anchor (points, tolerance) towards ``init``'s learned field
+    added to its regulariser; ``problem`` itself without ``anchor``."""
+    if anchor is None:
+        return problem
+    points, tolerance = anchor
+    term = problem.model.learnable
+    if term is None or term.natural_regulariser != "harmonic":
+        raise InputError("the field anchor applies to a network fit (SH have Kaula's rule)")
+    pull = FieldAnchor(problem.model, points, init, tolerance)
+    return problem.with_regulariser(RowRegularisers(problem.regulariser, pull))
 
 
 def fitted_harmonic_penalty(fitted: FittedModel, arcs: Arcs, body: Body):
@@ -814,6 +828,7 @@ class GravityEstimator:
         reuse: SolveResult | None = None,
         warm: bool | None = None,
         arc_weights: np.ndarray | None = None,
+        anchor: tuple[np.ndarray, float] | None = None,
     ) -> GravityEstimator:
         """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
         stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`),
@@ -831,9 +846,17 @@ class GravityEstimator:
         final fit). ``arc_weights`` (n_arcs,): each arc's weight in the cost, training and
         validation alike (:class:`~hamgrav.core.problem.ArcProblem`; e.g. a set of arcs
         deweighted as a whole; recorded in ``fitted_.solver``); not with hyperparameters to
-        choose."""
+        choose. ``anchor`` (points (k, 3) canonical, tolerance): a warm network fit's
+        learned field is held near ``init``'s at the points, to the relative tolerance
+        (:class:`~hamgrav.fit.anchor.FieldAnchor`, each ensemble member near its own
+        block; in the training objective only, recorded in ``fitted_.solver``)."""
         self.selection_ = []
         arc_weights = _checked_arc_weights(arc_weights, arcs)
+        if anchor is not None and (self.choices() or init is None):
+            raise InputError(
+                "the field anchor holds a warm refit near its start: give init (the "
+                "earlier fit's parameters) and fixed hyperparameters (nothing to choose)"
+            )
         if self.choices():
             if arc_weights is not None:
                 raise InputError(
@@ -919,11 +942,21 @@ class GravityEstimator:
             )
         elif ensemble:
             result, members = self._fit_members(
-                problem, init, solver, train, seen, callback, checkpoint, resume, reuse, warm
+                problem,
+                init,
+                solver,
+                train,
+                seen,
+                callback,
+                checkpoint,
+                resume,
+                reuse,
+                warm,
+                anchor,
             )
         else:
             result = solver.solve(
-                problem,
+                _anchored(problem, init, anchor),
                 init,
                 train=train,
                 validation=seen,
@@ -1037,6 +1070,8 @@ class GravityEstimator:
             solver_info["members"] = members
         if problem.regulariser is not None:
             solver_info |= problem.regulariser.record()
+        if anchor is not None:
+            solver_info["anchor"] = {"tolerance": float(anchor[1]), "points": len(anchor[0])}
         if isinstance(solver, LevenbergMarquardt):
             # every LM fit records its Kaula weight (0: none), as model files always have
             solver_info.setdefault("kaula_alpha", 0.0)
@@ -1222,7 +1257,18 @@ class GravityEstimator:
         return exterior_points(body, reach, DEFAULT_COLLOCATION_POINTS, seed=self.seed)
 
     def _fit_members(
-        self, problem, init, solver, train, validation, callback, checkpoint, resume, reuse, warm
+        self,
+        problem,
+        init,
+        solver,
+        train,
+        validation,
+        callback,
+        checkpoint,
+        resume,
+        reuse,
+        warm,
+        anchor=None,
     ):
         """Fit each member of the ensemble on its own, from its block of ``init``; returns the
         ensemble's result (iterations and wall time: totals over the members) and a summary
@@ -1231,7 +1277,8 @@ class GravityEstimator:
         ``reuse``: an earlier ensemble result, whose members' normal equations each member
         may add to (see :meth:`fit`). On a ``warm`` start, a member that no step improves
         keeps its starting block, which is a result, not a failure: the ensemble's outcome
-        comes from the other members."""
+        comes from the other members. ``anchor``: see :meth:`fit` (each member near its own
+        block of ``init``)."""
         start = time.perf_counter()
         term = problem.model.learnable
         member_problem = self._problem(problem.model.member(), problem.arcs, problem.arc_weights)
@@ -1249,7 +1296,7 @@ class GravityEstimator:
                 callback(it, {**record, "member": k})
 
             results[k] = solver.solve(
-                member_problem,
+                _anchored(member_problem, blocks[k], anchor),
                 blocks[k],
                 train=train,
                 validation=validation,

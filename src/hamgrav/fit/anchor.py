@@ -1,0 +1,155 @@
+"""The field anchor: a refit's learned field held near its warm start where new arcs do not reach.
+
+A warm refit on a few new arcs (descents, say) trains on every arc so far, but the arcs say
+nothing about the field far from where they fly; an LM refit of a flexible network still moves
+it there, and a refit that improves the field along the new arcs can spoil it elsewhere. The
+anchor treats the warm start's field as an observation of the acceleration at points x_k
+away from the new arcs, with a relative tolerance tau:
+
+    rows_k = (r_k / R_w)^4 (a(x_k; p) - a(x_k; p_0)) / (tau s),
+    s = rms_k (r_k / R_w)^4 |a(x_k; p_0)|,
+
+(a: the learnable term's acceleration, canonical; R_w: the network's envelope radius; the
+factor (r / R_w)^4 weighs points by the envelope's own fall-off, a ~ r^-4, as the harmonic
+penalty does its Laplacian). A tolerance of 0.1 says the warm start's field is known to about
+10 % of its size where the new arcs do not reach; the rows join the harmonic penalty's in the
+training objective (never the validation cost), with exact Gauss-Newton Jacobians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.model import Model, evaluate_field_parameter_gradient
+from ..core.problem import Regulariser
+from ..errors import InputError
+
+__all__ = ["FieldAnchor", "AnchorSettings", "RowRegularisers", "points_clear_of"]
+
+
+@dataclass(frozen=True)
+class AnchorSettings:
+    """How a warm refit is anchored (see the module): ``tolerance`` (dimensionless, > 0) is the
+    relative size of the change allowed at the anchor points; ``clearance`` [canonical length,
+    >= 0] frees the collocation points within that distance of any sample of the new arcs."""
+
+    tolerance: float
+    clearance: float
+
+    def __post_init__(self):
+        if not (np.isfinite(self.tolerance) and self.tolerance > 0):
+            raise InputError(f"the anchor's tolerance must be positive, got {self.tolerance}")
+        if not (np.isfinite(self.clearance) and self.clearance >= 0):
+            raise InputError(f"the anchor's clearance must be >= 0, got {self.clearance}")
+
+
+def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -> np.ndarray:
+    """The rows of ``points`` (k, 3) farther than ``clearance`` from every one of ``samples``
+    (m, 3) (one canonical length unit for all)."""
+    points = np.asarray(points, dtype=float)
+    samples = np.asarray(samples, dtype=float).reshape(-1, 3)
+    samples = samples[np.isfinite(samples).all(axis=1)]  # padding of shorter arcs
+    if clearance <= 0 or not len(samples):
+        return points
+    keep = np.ones(len(points), dtype=bool)
+    # chunks of points keep the distance matrix small (samples run to tens of thousands)
+    for i in range(0, len(points), 256):
+        block = points[i : i + 256]
+        d2 = np.min(
+            np.sum(block**2, axis=1)[:, None]
+            - 2.0 * block @ samples.T
+            + np.sum(samples**2, axis=1)[None, :],
+            axis=1,
+        )
+        keep[i : i + 256] = d2 > clearance**2
+    return points[keep]
+
+
+class FieldAnchor(Regulariser):
+    """The anchor rows of the module at ``points`` (k, 3, canonical) towards the learnable
+    field of ``model`` at ``target`` (its first ``n_learn`` entries), with relative
+    ``tolerance`` (dimensionless). :meth:`terms` gives 3k rows and their Jacobian
+    (3k, n_learn)."""
+
+    def __init__(self, model: Model, points: np.ndarray, target: np.ndarray, tolerance: float):
+        term = model.learnable
+        if term is None or model.n_learn == 0:
+            raise InputError("the field anchor needs a model with a learnable term")
+        if not (np.isfinite(tolerance) and tolerance > 0):
+            raise InputError(f"the anchor's tolerance must be positive, got {tolerance}")
+        points = np.asarray(points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3 or not len(points):
+            raise InputError("the anchor needs a nonempty (k, 3) array of points")
+        if not np.isfinite(points).all():
+            raise InputError("the anchor's points must be finite")
+        self.model = model
+        self.points = points
+        self.tolerance = float(tolerance)
+        radius = getattr(term, "envelope_radius", None) or 1.0
+        weight = (np.linalg.norm(points, axis=1) / radius) ** 4
+        target = np.asarray(target, dtype=float)[: model.n_learn]
+        values, _ = evaluate_field_parameter_gradient(model, target, points)
+        scaled = weight[:, None] * values[:, 1:]
+        size = float(np.sqrt(np.mean(np.sum(scaled**2, axis=1))))
+        if not size > 0:
+            raise InputError(
+                "the anchor's warm start has no learned field at its points (all zero): "
+                "anchor a fitted model"
+            )
+        self.scale = size
+        self._row_scale = weight / (self.tolerance * size)
+        self._target = values[:, 1:].copy()
+
+    def terms(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residual rows (3k,) and their Jacobian (3k, n_learn) at ``params``."""
+        values, grad = evaluate_field_parameter_gradient(self.model, params, self.points)
+        rows = self._row_scale[:, None] * (values[:, 1:] - self._target)
+        jac = self._row_scale[:, None, None] * grad[:, 1:, :]
+        return rows.reshape(-1), jac.reshape(-1, jac.shape[-1])
+
+    def describe(self) -> dict:
+        """Plain-data summary for fit records."""
+        return {"tolerance": self.tolerance, "points": len(self.points)}
+
+    def record(self) -> dict:
+        """The fit record's "anchor" entry: :meth:`describe`."""
+        return {"anchor": self.describe()}
+
+
+class RowRegularisers(Regulariser):
+    """Several regularisers of residual rows as one: their rows stacked (e.g. the harmonic
+    penalty and the field anchor); a diagonal prior is refused (it stays out of the rows)."""
+
+    def __init__(self, *parts: Regulariser):
+        self.parts = [p for p in parts if p is not None]
+        if not self.parts:
+            raise InputError("no regulariser to combine")
+        if any(p.diagonal() is not None for p in self.parts):
+            raise InputError(
+                "a diagonal prior (Kaula's rule) does not combine with residual rows: "
+                "anchor a network fit, not an SH one"
+            )
+
+    def terms(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The parts' rows and Jacobians, stacked in order."""
+        pieces = [p.terms(params) for p in self.parts]
+        return (
+            np.concatenate([rows for rows, _ in pieces]),
+            np.concatenate([jac for _, jac in pieces], axis=0),
+        )
+
+    def describe(self) -> dict:
+        """The parts' summaries, merged."""
+        out: dict = {}
+        for p in self.parts:
+            out |= p.describe()
+        return out
+
+    def record(self) -> dict:
+        """The parts' record entries, merged."""
+        out: dict = {}
+        for p in self.parts:
+            out |= p.record()
+        return out
