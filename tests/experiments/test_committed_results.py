@@ -40,6 +40,8 @@ BEFORE_THE_OPTION = {
     "descent_control": False,
     "descent_share": 0.0,
     "descent_validation": 0.0,
+    "descent_anchor": 0.0,
+    "descent_anchor_clearance_rb": 0.1,
     "network_start": "random",
 }
 

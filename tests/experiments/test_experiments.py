@@ -243,6 +243,11 @@ def test_descent_with_both_blocks_tiny(tmp_path):
             ["deep", "--descents", "2", "--descent-iterations", "5", "--descent-validation", "0.1"],
             "--descent-validation 0.1 of 2 descents holds none out",
         ),
+        (
+            ["deep", "--descents", "0", "--descent-anchor", "0.1"],
+            "--descent-anchor holds the descent refit near the stage-6 fit: give --descents",
+        ),
+        (["deep", "--descent-anchor", "-0.1"], "--descent-anchor must be at least 0"),
         (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
         (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
         (["descent", "--altitude-m", "-5"], "--altitude-m must be above 0, got -5.0"),
@@ -536,6 +541,32 @@ def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
     assert "with --descent-validation it trains on no descent" in readme
     sh_line = next(line for line in readme.splitlines() if line.startswith("- sh2: "))
     assert "iterate returned" not in sh_line and "held-out" not in sh_line
+
+
+def test_deep_tiny_with_the_descent_refit_anchored(tmp_path):
+    out = tmp_path / "deep"
+    args = [
+        *TINY_DEEP, "--descents", "3", "--sh-degrees", "2", "--map-degrees", "2",
+        "--map-points", "11", "--descent-degrees", "2", "--descent-iterations", "3",
+        "--descent-anchor", "0.1", "--descent-anchor-clearance-rb", "0.2",
+        "--random-orders", "0", "--no-d-optimal", "--descent-control", "-o", str(out),
+    ]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert data["config"]["descent_anchor"] == 0.1
+    fits = data["repetitions"][0]["descents"]["fits"]
+    net, sh = fits["network-best"], fits["sh2"]
+    # the network's refit is anchored away from the descents, its control (no new arcs)
+    # at every collocation point, and SH not at all
+    assert net["anchor"]["tolerance"] == 0.1 and 0 < net["anchor"]["points"] < 1500
+    assert net["control"]["anchor"] == {"tolerance": 0.1, "points": 1500}
+    assert "anchor" not in sh
+    readme = (out / "README.md").read_text()
+    assert "holds its learned field near the stage-6 fit's, to 0.1 of its size" in readme
+    assert "farther than 0.2 R_B from every descent sample (--descent-anchor)" in readme
+    assert f"anchored at {net['anchor']['points']} points; its control" in readme
+    assert "anchored at 1500 points" in readme
 
 
 def test_deep_tiny_without_the_later_parts(tmp_path):

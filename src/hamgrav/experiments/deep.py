@@ -717,6 +717,8 @@ class DeepExperiment(Experiment):
                 record = run.add(descent_idx, arc_weights=weights, **held, **stage)
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
+                if "anchor" in held:
+                    descent_fits[name]["anchor"] = est.fitted_.solver["anchor"]
                 if len(voting):
                     descent_fits[name]["n_validation_descents"] = len(voting)
                 if len(voting) and name == NETWORK:
@@ -731,6 +733,10 @@ class DeepExperiment(Experiment):
                         "n_arcs": control_record.n_arcs,
                         **_fit_record(control_record),
                     }
+                    if "anchor" in held:
+                        descent_fits[name]["control"]["anchor"] = control.estimator.fitted_.solver[
+                            "anchor"
+                        ]
                     if len(voting):
                         descent_fits[name]["control"]["best_iterations"] = _best_iterations(
                             control_record.result

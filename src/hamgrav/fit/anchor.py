@@ -47,9 +47,13 @@ class AnchorSettings:
 
 def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -> np.ndarray:
     """The rows of ``points`` (k, 3) farther than ``clearance`` from every one of ``samples``
-    (m, 3) (one canonical length unit for all)."""
+    (..., 3) (one canonical length unit for all; samples that are not finite, the padding of
+    shorter arcs, are left out)."""
     points = np.asarray(points, dtype=float)
-    samples = np.asarray(samples, dtype=float).reshape(-1, 3)
+    samples = np.asarray(samples, dtype=float)
+    if samples.shape[-1] != 3:
+        raise InputError(f"samples must be positions (..., 3), got shape {samples.shape}")
+    samples = samples.reshape(-1, 3)
     samples = samples[np.isfinite(samples).all(axis=1)]  # padding of shorter arcs
     if clearance <= 0 or not len(samples):
         return points

@@ -412,6 +412,14 @@ def _descents_section(report: dict, net: str) -> list[str]:
             f"; the descent arcs weigh as a set {share:g} of the cost, the orbital arcs "
             f"{1 - share:g}, each measured by what no correction leaves on it"
         )
+    anchor = cfg.get("descent_anchor", 0.0)
+    if anchor:
+        refit += (
+            f"; the network's refit holds its learned field near the stage-6 fit's, to "
+            f"{anchor:g} of its size, at the collocation points farther than "
+            f"{cfg['descent_anchor_clearance_rb']:g} R_B from every descent sample "
+            "(--descent-anchor)"
+        )
     lines = [
         "",
         "## Descent assimilation",
@@ -468,6 +476,8 @@ def _descents_section(report: dict, net: str) -> list[str]:
             line += f", each descent arc weighing {f['descent_weight']:.3g}"
         if f.get("best_iterations") and _selects(first, m):
             line += ", iterate returned " + _iterates(f["best_iterations"])
+        if f.get("anchor"):
+            line += f", anchored at {f['anchor']['points']} points"
         if f.get("control"):
             c = f["control"]
             line += (
@@ -476,6 +486,8 @@ def _descents_section(report: dict, net: str) -> list[str]:
             )
             if c.get("best_iterations"):
                 line += ", iterate returned " + _iterates(c["best_iterations"])
+            if c.get("anchor"):
+                line += f", anchored at {c['anchor']['points']} points"
         lines.append(line)
     chosen = {
         m: [r["descents"]["fits"][m].get("best_iterations") for r in reps if "descents" in r]

@@ -1,0 +1,144 @@
+import numpy as np
+import pytest
+
+from hamgrav.core.model import Model, evaluate_field
+from hamgrav.core.terms import NeuralPotential, PointMass
+from hamgrav.errors import InputError
+from hamgrav.fit.anchor import AnchorSettings, FieldAnchor, RowRegularisers, points_clear_of
+from hamgrav.fit.continual import ContinualFit
+from hamgrav.fit.estimator import GravityEstimator
+from hamgrav.fit.harmonic import HarmonicPenalty
+from hamgrav.fit.kaula import KaulaPrior
+from hamgrav.fit.lm import LevenbergMarquardt
+
+NET = Model((PointMass(),), NeuralPotential((5, 4), envelope_radius=0.8))
+POINTS = np.array([[1.3, 0.2, -0.4], [-0.7, 1.1, 0.5], [0.3, -0.9, 1.6], [2.0, 0.1, 0.0]])
+
+
+@pytest.fixture(scope="module")
+def start():
+    return NET.learnable.initial_params(3) * 3.0
+
+
+@pytest.fixture(scope="module")
+def moved(start):
+    return start + 0.05 * np.random.default_rng(4).normal(size=start.shape)
+
+
+def test_anchor_rows_are_the_weighted_change_of_the_field(start, moved):
+    """Rows: (r/R_w)^4 (a(p) - a(p0)) / (tau s), s the rms of (r/R_w)^4 |a(p0)|; checked
+    against the field function (the path the dynamics use), not the anchor's own."""
+    anchor = FieldAnchor(NET, POINTS, start, 0.2)
+    rows, _ = anchor.terms(start)
+    assert np.array_equal(rows, np.zeros(12))
+    weight = (np.linalg.norm(POINTS, axis=1) / 0.8) ** 4
+    a0 = evaluate_field(NET, start, POINTS)[1]
+    a1 = evaluate_field(NET, moved, POINTS)[1]
+    scale = np.sqrt(np.mean(np.sum((weight[:, None] * a0) ** 2, axis=1)))
+    expected = (weight[:, None] * (a1 - a0) / (0.2 * scale)).reshape(-1)
+    rows, _ = anchor.terms(moved)
+    np.testing.assert_allclose(rows, expected, rtol=1e-10, atol=1e-14)
+    assert np.abs(rows).max() > 1e-3  # the parameters moved the field: not vacuous
+    assert anchor.record() == {"anchor": {"tolerance": 0.2, "points": 4}}
+
+
+def test_anchor_jacobian_matches_finite_differences(start, moved):
+    anchor = FieldAnchor(NET, POINTS, start, 0.1)
+    _, jac = anchor.terms(moved)
+    assert jac.shape == (12, NET.n_learn)
+    for j in (0, 9, NET.n_learn - 2, NET.n_learn - 1):
+        step = np.zeros_like(moved)
+        step[j] = 1e-6
+        fd = (anchor.terms(moved + step)[0] - anchor.terms(moved - step)[0]) / 2e-6
+        np.testing.assert_allclose(jac[:, j], fd, rtol=1e-5, atol=1e-7 * np.abs(fd).max())
+
+
+def test_anchor_refuses_what_it_cannot_hold(start):
+    with pytest.raises(InputError, match="tolerance must be positive"):
+        FieldAnchor(NET, POINTS, start, 0.0)
+    with pytest.raises(InputError, match="nonempty"):
+        FieldAnchor(NET, np.zeros((0, 3)), start, 0.1)
+    with pytest.raises(InputError, match="no learned field"):
+        FieldAnchor(NET, POINTS, np.zeros_like(start), 0.1)
+    with pytest.raises(InputError, match="clearance must be >= 0"):
+        AnchorSettings(0.1, -1.0)
+
+
+def test_points_clear_of_keeps_exactly_the_points_beyond_the_clearance():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-2, 2, size=(700, 3))
+    samples = rng.uniform(-2, 2, size=(3, 40, 3))
+    samples[1, 30:] = np.nan  # a shorter arc's padding
+    finite = samples.reshape(-1, 3)[np.isfinite(samples.reshape(-1, 3)).all(axis=1)]
+    distance = np.linalg.norm(points[:, None, :] - finite[None, :, :], axis=-1).min(axis=1)
+    kept = points_clear_of(points, samples, 0.3)
+    np.testing.assert_array_equal(kept, points[distance > 0.3])
+    assert 0 < len(kept) < len(points)
+    assert len(points_clear_of(points, samples, 0.0)) == len(points)
+    with pytest.raises(InputError, match="positions"):
+        points_clear_of(points, np.zeros((2, 6)), 0.3)
+
+
+def test_row_regularisers_stack_their_parts_and_refuse_a_diagonal_prior(start, moved):
+    penalty = HarmonicPenalty(NET, POINTS[:3], 1e-3)
+    anchor = FieldAnchor(NET, POINTS, start, 0.1)
+    both = RowRegularisers(penalty, None, anchor)
+    rows, jac = both.terms(moved)
+    np.testing.assert_array_equal(rows[:3], penalty.terms(moved)[0])
+    np.testing.assert_array_equal(jac[3:], anchor.terms(moved)[1])
+    assert set(both.record()) == {"harmonic", "anchor"}
+    from hamgrav.core.terms import SphericalHarmonics
+
+    kaula = KaulaPrior(Model((PointMass(),), SphericalHarmonics(3, 1.0)), 1e-3)
+    with pytest.raises(InputError, match="does not combine"):
+        RowRegularisers(penalty, kaula)
+
+
+def _network(truth) -> GravityEstimator:
+    return GravityEstimator(
+        "network",
+        hidden=(4,),
+        members=2,
+        validation_fraction=0.25,
+        solver=LevenbergMarquardt(max_iter=2),
+        body=truth.body,
+    )
+
+
+def test_an_anchored_stage_holds_the_field_where_its_new_arcs_do_not_reach(
+    small_arcs, synthetic_truth
+):
+    """A warm stage with a tight anchor keeps each member's field at the points clear of its
+    new arcs, where the same stage without it moves it by far more; the anchor's points are
+    the collocation points the clearance leaves, and the fit records them."""
+    run = ContinualFit(_network(synthetic_truth), small_arcs)
+    first = run.add(np.arange(0, 5))
+    free, held = run.fork(), run.fork()
+    solver = LevenbergMarquardt(max_iter=10, rtol=0.0)
+    new = np.arange(5, 9)
+    free.add(new, validate=False, solver=solver)
+    held.add(new, validate=False, solver=solver, anchor=AnchorSettings(1e-3, clearance=0.3))
+    est = held.estimator
+    subset = small_arcs.subset(np.setdiff1d(np.arange(9), first.validation))
+    points = points_clear_of(est.collocation_points(subset), small_arcs.states[new][..., :3], 0.3)
+    assert 0 < len(points) < 1500
+    assert est.fitted_.solver["anchor"] == {"tolerance": 1e-3, "points": len(points)}
+    member = est.model_.member()
+    term = est.model_.learnable
+    for k in range(term.members):
+        start, after_free, after_held = (
+            evaluate_field(member, term.split_members(fit.params)[k], points)[1]
+            for fit in (run, free, held)
+        )
+        size = np.abs(start).max()
+        assert np.abs(after_free - start).max() > 0.1 * size
+        assert np.abs(after_held - start).max() < 1e-3 * size
+
+
+def test_an_anchor_needs_a_previous_stage(small_arcs, synthetic_truth):
+    run = ContinualFit(_network(synthetic_truth), small_arcs)
+    with pytest.raises(InputError, match="fit a first stage"):
+        run.add(np.arange(0, 5), anchor=AnchorSettings(0.1, 0.1))
+    est = _network(synthetic_truth)
+    with pytest.raises(InputError, match="give init"):
+        est.fit(small_arcs, anchor=(np.ones((2, 3)), 0.1))
