@@ -559,11 +559,11 @@ def test_deep_tiny_with_the_descent_refit_anchored(tmp_path):
     net, sh = fits["network-best"], fits["sh2"]
     # the network's refit is anchored away from the descents, its control (no new arcs)
     # at every collocation point, and SH not at all
-    assert net["anchor"]["tolerance"] == 0.1 and 0 < net["anchor"]["points"] < 1500
-    assert net["control"]["anchor"] == {"tolerance": 0.1, "points": 1500}
+    assert net["anchor"]["weight"] == 0.1 and 0 < net["anchor"]["points"] < 1500
+    assert net["control"]["anchor"] == {"weight": 0.1, "points": 1500}
     assert "anchor" not in sh
     readme = (out / "README.md").read_text()
-    assert "holds its learned field near the stage-6 fit's, to 0.1 of its size" in readme
+    assert "holds its learned field near the stage-6 fit's, with the weight 0.1" in readme
     assert "farther than 0.2 R_B from every descent sample (--descent-anchor)" in readme
     assert f"anchored at {net['anchor']['points']} points; its control" in readme
     assert "anchored at 1500 points" in readme

@@ -26,20 +26,19 @@ def moved(start):
 
 
 def test_anchor_rows_are_the_weighted_change_of_the_field(start, moved):
-    """Rows: (r/R_w)^4 (a(p) - a(p0)) / (tau s), s the rms of (r/R_w)^4 |a(p0)|; checked
-    against the field function (the path the dynamics use), not the anchor's own."""
+    """Rows: sqrt(w) (r/R_w)^4 (a(p) - a(p0)); checked against the field function (the path
+    the dynamics use), not the anchor's own."""
     anchor = FieldAnchor(NET, POINTS, start, 0.2)
     rows, _ = anchor.terms(start)
     assert np.array_equal(rows, np.zeros(12))
-    weight = (np.linalg.norm(POINTS, axis=1) / 0.8) ** 4
+    weight = np.sqrt(0.2) * (np.linalg.norm(POINTS, axis=1) / 0.8) ** 4
     a0 = evaluate_field(NET, start, POINTS)[1]
     a1 = evaluate_field(NET, moved, POINTS)[1]
-    scale = np.sqrt(np.mean(np.sum((weight[:, None] * a0) ** 2, axis=1)))
-    expected = (weight[:, None] * (a1 - a0) / (0.2 * scale)).reshape(-1)
+    expected = (weight[:, None] * (a1 - a0)).reshape(-1)
     rows, _ = anchor.terms(moved)
     np.testing.assert_allclose(rows, expected, rtol=1e-10, atol=1e-14)
     assert np.abs(rows).max() > 1e-3  # the parameters moved the field: not vacuous
-    assert anchor.record() == {"anchor": {"tolerance": 0.2, "points": 4}}
+    assert anchor.record() == {"anchor": {"weight": 0.2, "points": 4}}
 
 
 def test_anchor_jacobian_matches_finite_differences(start, moved):
@@ -54,12 +53,12 @@ def test_anchor_jacobian_matches_finite_differences(start, moved):
 
 
 def test_anchor_refuses_what_it_cannot_hold(start):
-    with pytest.raises(InputError, match="tolerance must be positive"):
+    with pytest.raises(InputError, match="weight must be positive"):
         FieldAnchor(NET, POINTS, start, 0.0)
     with pytest.raises(InputError, match="nonempty"):
         FieldAnchor(NET, np.zeros((0, 3)), start, 0.1)
-    with pytest.raises(InputError, match="no learned field"):
-        FieldAnchor(NET, POINTS, np.zeros_like(start), 0.1)
+    with pytest.raises(InputError, match="weight must be positive"):
+        AnchorSettings(-1.0, 0.1)
     with pytest.raises(InputError, match="clearance must be >= 0"):
         AnchorSettings(0.1, -1.0)
 
@@ -117,12 +116,12 @@ def test_an_anchored_stage_holds_the_field_where_its_new_arcs_do_not_reach(
     solver = LevenbergMarquardt(max_iter=10, rtol=0.0)
     new = np.arange(5, 9)
     free.add(new, validate=False, solver=solver)
-    held.add(new, validate=False, solver=solver, anchor=AnchorSettings(1e-3, clearance=0.3))
+    held.add(new, validate=False, solver=solver, anchor=AnchorSettings(1e3, clearance=0.3))
     est = held.estimator
     subset = small_arcs.subset(np.setdiff1d(np.arange(9), first.validation))
     points = points_clear_of(est.collocation_points(subset), small_arcs.states[new][..., :3], 0.3)
     assert 0 < len(points) < 1500
-    assert est.fitted_.solver["anchor"] == {"tolerance": 1e-3, "points": len(points)}
+    assert est.fitted_.solver["anchor"] == {"weight": 1e3, "points": len(points)}
     member = est.model_.member()
     term = est.model_.learnable
     for k in range(term.members):

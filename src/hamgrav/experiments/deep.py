@@ -301,10 +301,10 @@ class DeepExperimentConfig(DeepCampaignConfig):
     )
     descent_anchor: float = option(
         0.0,
-        "0: off; tau > 0: the network's descent refit (and the control) holds its learned "
-        "field near the stage-6 fit's, to the relative tolerance tau, at the harmonic "
-        "penalty's collocation points farther than descent_anchor_clearance_rb from every "
-        "sample of the arriving arcs (hamgrav.fit.anchor): the descents move the field "
+        "0: off; w > 0: the network's descent refit (and the control) holds its learned "
+        "field near the stage-6 fit's with the weight w (measured like --harmonic) at the "
+        "harmonic penalty's collocation points farther than descent_anchor_clearance_rb from "
+        "every sample of the arriving arcs (hamgrav.fit.anchor): the descents move the field "
         "where they fly, not where they do not reach.",
         at_least=0,
     )

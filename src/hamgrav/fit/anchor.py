@@ -3,17 +3,16 @@
 A warm refit on a few new arcs (descents, say) trains on every arc so far, but the arcs say
 nothing about the field far from where they fly; an LM refit of a flexible network still moves
 it there, and a refit that improves the field along the new arcs can spoil it elsewhere. The
-anchor treats the warm start's field as an observation of the acceleration at points x_k
-away from the new arcs, with a relative tolerance tau:
+anchor adds to the training objective (never to the validation cost) the rows
 
-    rows_k = (r_k / R_w)^4 (a(x_k; p) - a(x_k; p_0)) / (tau s),
-    s = rms_k (r_k / R_w)^4 |a(x_k; p_0)|,
+    sqrt(w) (r_k / R_w)^4 (a(x_k; p) - a(x_k; p_0))
 
-(a: the learnable term's acceleration, canonical; R_w: the network's envelope radius; the
-factor (r / R_w)^4 weighs points by the envelope's own fall-off, a ~ r^-4, as the harmonic
-penalty does its Laplacian). A tolerance of 0.1 says the warm start's field is known to about
-10 % of its size where the new arcs do not reach; the rows join the harmonic penalty's in the
-training objective (never the validation cost), with exact Gauss-Newton Jacobians.
+at points x_k away from the new arcs (a: the learnable term's acceleration, canonical; p_0:
+the warm start; R_w: the network's envelope radius; the factor (r / R_w)^4 weighs points by
+the envelope's own fall-off, a ~ r^-4, as the harmonic penalty does its Laplacian), with their
+exact Gauss-Newton Jacobians. The weight w is dimensionless and measured like the harmonic
+penalty's (:mod:`hamgrav.fit.harmonic`): on the sum over the points, against the arcs' cost in
+canonical units.
 """
 
 from __future__ import annotations
@@ -31,16 +30,16 @@ __all__ = ["FieldAnchor", "AnchorSettings", "RowRegularisers", "points_clear_of"
 
 @dataclass(frozen=True)
 class AnchorSettings:
-    """How a warm refit is anchored (see the module): ``tolerance`` (dimensionless, > 0) is the
-    relative size of the change allowed at the anchor points; ``clearance`` [canonical length,
-    >= 0] frees the collocation points within that distance of any sample of the new arcs."""
+    """How a warm refit is anchored (see the module): ``weight`` w (dimensionless, > 0) of the
+    anchor's rows; ``clearance`` [canonical length, >= 0] frees the collocation points within
+    that distance of any sample of the new arcs."""
 
-    tolerance: float
+    weight: float
     clearance: float
 
     def __post_init__(self):
-        if not (np.isfinite(self.tolerance) and self.tolerance > 0):
-            raise InputError(f"the anchor's tolerance must be positive, got {self.tolerance}")
+        if not (np.isfinite(self.weight) and self.weight > 0):
+            raise InputError(f"the anchor's weight must be positive, got {self.weight}")
         if not (np.isfinite(self.clearance) and self.clearance >= 0):
             raise InputError(f"the anchor's clearance must be >= 0, got {self.clearance}")
 
@@ -73,16 +72,15 @@ def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -
 
 class FieldAnchor(Regulariser):
     """The anchor rows of the module at ``points`` (k, 3, canonical) towards the learnable
-    field of ``model`` at ``target`` (its first ``n_learn`` entries), with relative
-    ``tolerance`` (dimensionless). :meth:`terms` gives 3k rows and their Jacobian
-    (3k, n_learn)."""
+    field of ``model`` at ``target`` (its first ``n_learn`` entries), with ``weight`` w
+    (dimensionless). :meth:`terms` gives 3k rows and their Jacobian (3k, n_learn)."""
 
-    def __init__(self, model: Model, points: np.ndarray, target: np.ndarray, tolerance: float):
+    def __init__(self, model: Model, points: np.ndarray, target: np.ndarray, weight: float):
         term = model.learnable
         if term is None or model.n_learn == 0:
             raise InputError("the field anchor needs a model with a learnable term")
-        if not (np.isfinite(tolerance) and tolerance > 0):
-            raise InputError(f"the anchor's tolerance must be positive, got {tolerance}")
+        if not (np.isfinite(weight) and weight > 0):
+            raise InputError(f"the anchor's weight must be positive, got {weight}")
         points = np.asarray(points, dtype=float)
         if points.ndim != 2 or points.shape[1] != 3 or not len(points):
             raise InputError("the anchor needs a nonempty (k, 3) array of points")
@@ -90,20 +88,11 @@ class FieldAnchor(Regulariser):
             raise InputError("the anchor's points must be finite")
         self.model = model
         self.points = points
-        self.tolerance = float(tolerance)
+        self.weight = float(weight)
         radius = getattr(term, "envelope_radius", None) or 1.0
-        weight = (np.linalg.norm(points, axis=1) / radius) ** 4
+        self._row_scale = np.sqrt(self.weight) * (np.linalg.norm(points, axis=1) / radius) ** 4
         target = np.asarray(target, dtype=float)[: model.n_learn]
         values, _ = evaluate_field_parameter_gradient(model, target, points)
-        scaled = weight[:, None] * values[:, 1:]
-        size = float(np.sqrt(np.mean(np.sum(scaled**2, axis=1))))
-        if not size > 0:
-            raise InputError(
-                "the anchor's warm start has no learned field at its points (all zero): "
-                "anchor a fitted model"
-            )
-        self.scale = size
-        self._row_scale = weight / (self.tolerance * size)
         self._target = values[:, 1:].copy()
 
     def terms(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -115,7 +104,7 @@ class FieldAnchor(Regulariser):
 
     def describe(self) -> dict:
         """Plain-data summary for fit records."""
-        return {"tolerance": self.tolerance, "points": len(self.points)}
+        return {"weight": self.weight, "points": len(self.points)}
 
     def record(self) -> dict:
         """The fit record's "anchor" entry: :meth:`describe`."""

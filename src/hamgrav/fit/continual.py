@@ -176,7 +176,7 @@ class ContinualFit:
                     f"no collocation point lies farther than {anchor.clearance:g} (canonical) "
                     "from the new arcs: give the anchor a smaller clearance"
                 )
-            anchored = (points, anchor.tolerance)
+            anchored = (points, anchor.weight)
         # the previous stage's training arcs keep their indices (arcs are appended), so its
         # normal equations at theta are added to rather than formed again
         previous = self.records[-1].result if warm else None

@@ -307,15 +307,15 @@ def noise_whitening(arcs: Arcs) -> np.ndarray:
 
 
 def _anchored(problem, init: np.ndarray, anchor):
-    """``problem`` with the field anchor (points, tolerance) towards ``init``'s learned field
+    """``problem`` with the field anchor (points, weight) towards ``init``'s learned field
     added to its regulariser; ``problem`` itself without ``anchor``."""
     if anchor is None:
         return problem
-    points, tolerance = anchor
+    points, weight = anchor
     term = problem.model.learnable
     if term is None or term.natural_regulariser != "harmonic":
         raise InputError("the field anchor applies to a network fit (SH have Kaula's rule)")
-    pull = FieldAnchor(problem.model, points, init, tolerance)
+    pull = FieldAnchor(problem.model, points, init, weight)
     return problem.with_regulariser(RowRegularisers(problem.regulariser, pull))
 
 
@@ -846,8 +846,8 @@ class GravityEstimator:
         final fit). ``arc_weights`` (n_arcs,): each arc's weight in the cost, training and
         validation alike (:class:`~hamgrav.core.problem.ArcProblem`; e.g. a set of arcs
         deweighted as a whole; recorded in ``fitted_.solver``); not with hyperparameters to
-        choose. ``anchor`` (points (k, 3) canonical, tolerance): a warm network fit's
-        learned field is held near ``init``'s at the points, to the relative tolerance
+        choose. ``anchor`` (points (k, 3) canonical, weight): a warm network fit's
+        learned field is held near ``init``'s at the points, with the weight
         (:class:`~hamgrav.fit.anchor.FieldAnchor`, each ensemble member near its own
         block; in the training objective only, recorded in ``fitted_.solver``)."""
         self.selection_ = []
@@ -1071,7 +1071,7 @@ class GravityEstimator:
         if problem.regulariser is not None:
             solver_info |= problem.regulariser.record()
         if anchor is not None:
-            solver_info["anchor"] = {"tolerance": float(anchor[1]), "points": len(anchor[0])}
+            solver_info["anchor"] = {"weight": float(anchor[1]), "points": len(anchor[0])}
         if isinstance(solver, LevenbergMarquardt):
             # every LM fit records its Kaula weight (0: none), as model files always have
             solver_info.setdefault("kaula_alpha", 0.0)
