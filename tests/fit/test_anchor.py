@@ -141,3 +141,5 @@ def test_an_anchor_needs_a_previous_stage(small_arcs, synthetic_truth):
     est = _network(synthetic_truth)
     with pytest.raises(InputError, match="give init"):
         est.fit(small_arcs, anchor=(np.ones((2, 3)), 0.1))
+    with pytest.raises(InputError, match="do not resume"):
+        est.fit(small_arcs, init=np.zeros(3), resume={}, anchor=(np.ones((2, 3)), 0.1))

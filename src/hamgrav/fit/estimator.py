@@ -852,10 +852,12 @@ class GravityEstimator:
         block; in the training objective only, recorded in ``fitted_.solver``)."""
         self.selection_ = []
         arc_weights = _checked_arc_weights(arc_weights, arcs)
-        if anchor is not None and (self.choices() or init is None):
+        if anchor is not None and (self.choices() or init is None or resume is not None):
+            # a resumed fit's init is its checkpoint, not the model the anchor holds it near
             raise InputError(
                 "the field anchor holds a warm refit near its start: give init (the "
-                "earlier fit's parameters) and fixed hyperparameters (nothing to choose)"
+                "earlier fit's parameters) and fixed hyperparameters (nothing to choose), "
+                "and do not resume"
             )
         if self.choices():
             if arc_weights is not None:
