@@ -557,16 +557,16 @@ def test_deep_tiny_with_the_descent_refit_anchored(tmp_path):
     assert data["config"]["descent_anchor"] == 0.1
     fits = data["repetitions"][0]["descents"]["fits"]
     net, sh = fits["network-best"], fits["sh2"]
-    # the network's refit is anchored away from the descents, its control (no new arcs)
-    # at every collocation point, and SH not at all
+    # the network's refit is anchored away from the descents, its control (no new arcs) at
+    # the same points, and SH not at all
     assert net["anchor"]["weight"] == 0.1 and 0 < net["anchor"]["points"] < 1500
-    assert net["control"]["anchor"] == {"weight": 0.1, "points": 1500}
+    assert net["control"]["anchor"] == net["anchor"]
     assert "anchor" not in sh
     readme = (out / "README.md").read_text()
     assert "holds its learned field near the stage-6 fit's, with the weight 0.1" in readme
     assert "farther than 0.2 R_B from every descent sample (--descent-anchor)" in readme
     assert f"anchored at {net['anchor']['points']} points; its control" in readme
-    assert "anchored at 1500 points" in readme
+    assert readme.count(f"anchored at {net['anchor']['points']} points") == 2
 
 
 def test_deep_tiny_without_the_later_parts(tmp_path):

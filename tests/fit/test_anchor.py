@@ -4,6 +4,7 @@ import pytest
 from hamgrav.core.model import Model, evaluate_field
 from hamgrav.core.terms import NeuralPotential, PointMass
 from hamgrav.errors import InputError
+from hamgrav.fit.adam import Adam
 from hamgrav.fit.anchor import AnchorSettings, FieldAnchor, RowRegularisers, points_clear_of
 from hamgrav.fit.continual import ContinualFit
 from hamgrav.fit.estimator import GravityEstimator
@@ -93,24 +94,26 @@ def test_row_regularisers_stack_their_parts_and_refuse_a_diagonal_prior(start, m
         RowRegularisers(penalty, kaula)
 
 
-def _network(truth) -> GravityEstimator:
+def _network(truth, members: int = 2) -> GravityEstimator:
     return GravityEstimator(
         "network",
         hidden=(4,),
-        members=2,
+        members=members,
         validation_fraction=0.25,
         solver=LevenbergMarquardt(max_iter=2),
         body=truth.body,
     )
 
 
+@pytest.mark.parametrize("members", [1, 2])
 def test_an_anchored_stage_holds_the_field_where_its_new_arcs_do_not_reach(
-    small_arcs, synthetic_truth
+    small_arcs, synthetic_truth, members
 ):
-    """A warm stage with a tight anchor keeps each member's field at the points clear of its
-    new arcs, where the same stage without it moves it by far more; the anchor's points are
-    the collocation points the clearance leaves, and the fit records them."""
-    run = ContinualFit(_network(synthetic_truth), small_arcs)
+    """A warm stage with a tight anchor keeps each member's field (or the one network's) at
+    the points clear of its new arcs, where the same stage without it moves it by far more;
+    the anchor's points are the collocation points the clearance leaves, and the fit
+    records them."""
+    run = ContinualFit(_network(synthetic_truth, members), small_arcs)
     first = run.add(np.arange(0, 5))
     free, held = run.fork(), run.fork()
     solver = LevenbergMarquardt(max_iter=10, rtol=0.0)
@@ -122,11 +125,16 @@ def test_an_anchored_stage_holds_the_field_where_its_new_arcs_do_not_reach(
     points = points_clear_of(est.collocation_points(subset), small_arcs.states[new][..., :3], 0.3)
     assert 0 < len(points) < 1500
     assert est.fitted_.solver["anchor"] == {"weight": 1e3, "points": len(points)}
-    member = est.model_.member()
+    stage = {"weight": 1e3, "clearance": 0.3, "points": len(points)}
+    assert held.records[-1].summary()["anchor"] == stage
+    assert "anchor" not in free.records[-1].summary()
     term = est.model_.learnable
-    for k in range(term.members):
+    member = est.model_.member() if members > 1 else est.model_
+    for k in range(members):
         start, after_free, after_held = (
             evaluate_field(member, term.split_members(fit.params)[k], points)[1]
+            if members > 1
+            else evaluate_field(member, fit.params, points)[1]
             for fit in (run, free, held)
         )
         size = np.abs(start).max()
@@ -134,10 +142,21 @@ def test_an_anchored_stage_holds_the_field_where_its_new_arcs_do_not_reach(
         assert np.abs(after_held - start).max() < 1e-3 * size
 
 
-def test_an_anchor_needs_a_previous_stage(small_arcs, synthetic_truth):
+def test_an_anchor_needs_a_previous_stage_a_network_and_lm(small_arcs, synthetic_truth):
     run = ContinualFit(_network(synthetic_truth), small_arcs)
     with pytest.raises(InputError, match="fit a first stage"):
         run.add(np.arange(0, 5), anchor=AnchorSettings(0.1, 0.1))
+    run.add(np.arange(0, 5))
+    # Adam's gradient leaves regularisers out: an anchor there would not act
+    with pytest.raises(InputError, match="fit with LM"):
+        run.fork().add(np.arange(5, 9), solver=Adam(steps=2), anchor=AnchorSettings(0.1, 0.1))
+    sh = ContinualFit(
+        GravityEstimator("sh", degree=2, body=synthetic_truth.body, validation_fraction=0.25),
+        small_arcs,
+    )
+    sh.add(np.arange(0, 5))
+    with pytest.raises(InputError, match="needs a network"):
+        sh.add(np.arange(5, 9), anchor=AnchorSettings(0.1, 0.1))
     est = _network(synthetic_truth)
     with pytest.raises(InputError, match="give init"):
         est.fit(small_arcs, anchor=(np.ones((2, 3)), 0.1))

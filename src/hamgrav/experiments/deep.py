@@ -707,9 +707,11 @@ class DeepExperiment(Experiment):
                 )
                 held = {"validation_arcs": voting} if len(voting) else {}
                 if config.descent_anchor and name == NETWORK:
+                    # the control is anchored at the refit's points: clear of the descents
                     held["anchor"] = AnchorSettings(
                         config.descent_anchor,
                         config.descent_anchor_clearance_rb * truth.body.brillouin_radius,
+                        clear_of=all_arcs.states[descent_idx][..., :3],
                     )
                 # the same refit with no new arcs, from the same fit (descent_control); with
                 # held-out descents they still choose its iterate, and none trains
@@ -718,7 +720,8 @@ class DeepExperiment(Experiment):
                 after[name] = (est.model_, record.result.params)
                 descent_fits[name] = {"n_arcs": record.n_arcs, **_fit_record(record)}
                 if "anchor" in held:
-                    descent_fits[name]["anchor"] = est.fitted_.solver["anchor"]
+                    # None: the stage restarted cold, without it
+                    descent_fits[name]["anchor"] = est.fitted_.solver.get("anchor")
                 if len(voting):
                     descent_fits[name]["n_validation_descents"] = len(voting)
                 if len(voting) and name == NETWORK:
@@ -734,9 +737,8 @@ class DeepExperiment(Experiment):
                         **_fit_record(control_record),
                     }
                     if "anchor" in held:
-                        descent_fits[name]["control"]["anchor"] = control.estimator.fitted_.solver[
-                            "anchor"
-                        ]
+                        anchor_record = control.estimator.fitted_.solver.get("anchor")
+                        descent_fits[name]["control"]["anchor"] = anchor_record
                     if len(voting):
                         descent_fits[name]["control"]["best_iterations"] = _best_iterations(
                             control_record.result

@@ -12,7 +12,9 @@ the warm start; R_w: the network's envelope radius; the factor (r / R_w)^4 weigh
 the envelope's own fall-off, a ~ r^-4, as the harmonic penalty does its Laplacian), with their
 exact Gauss-Newton Jacobians. The weight w is dimensionless and measured like the harmonic
 penalty's (:mod:`hamgrav.fit.harmonic`): on the sum over the points, against the arcs' cost in
-canonical units.
+canonical units. The formal covariance (:mod:`hamgrav.fit.covariance`) leaves the anchor out:
+it holds the fit near an earlier fit of the same arcs, whose information the covariance
+already counts.
 """
 
 from __future__ import annotations
@@ -28,14 +30,17 @@ from ..errors import InputError
 __all__ = ["FieldAnchor", "AnchorSettings", "RowRegularisers", "points_clear_of"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class AnchorSettings:
     """How a warm refit is anchored (see the module): ``weight`` w (dimensionless, > 0) of the
     anchor's rows; ``clearance`` [canonical length, >= 0] frees the collocation points within
-    that distance of any sample of the new arcs."""
+    that distance of any sample of the new arcs, or of the positions ``clear_of`` (..., 3)
+    [canonical] when given (e.g. a control refit without the new arcs, anchored at the same
+    points as the refit with them)."""
 
     weight: float
     clearance: float
+    clear_of: np.ndarray | None = None
 
     def __post_init__(self):
         if not (np.isfinite(self.weight) and self.weight > 0):
@@ -46,14 +51,14 @@ class AnchorSettings:
 
 def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -> np.ndarray:
     """The rows of ``points`` (k, 3) farther than ``clearance`` from every one of ``samples``
-    (..., 3) (one canonical length unit for all; samples that are not finite, the padding of
-    shorter arcs, are left out)."""
+    (..., 3) (one canonical length unit for all; samples that are not finite are left
+    out)."""
     points = np.asarray(points, dtype=float)
     samples = np.asarray(samples, dtype=float)
     if samples.shape[-1] != 3:
         raise InputError(f"samples must be positions (..., 3), got shape {samples.shape}")
     samples = samples.reshape(-1, 3)
-    samples = samples[np.isfinite(samples).all(axis=1)]  # padding of shorter arcs
+    samples = samples[np.isfinite(samples).all(axis=1)]  # a sample never propagated
     if clearance <= 0 or not len(samples):
         return points
     keep = np.ones(len(points), dtype=bool)
@@ -77,8 +82,10 @@ class FieldAnchor(Regulariser):
 
     def __init__(self, model: Model, points: np.ndarray, target: np.ndarray, weight: float):
         term = model.learnable
-        if term is None or model.n_learn == 0:
-            raise InputError("the field anchor needs a model with a learnable term")
+        if term is None or model.n_learn == 0 or term.natural_regulariser != "harmonic":
+            raise InputError(
+                "the field anchor needs a network (a learnable term with the harmonic penalty)"
+            )
         if not (np.isfinite(weight) and weight > 0):
             raise InputError(f"the anchor's weight must be positive, got {weight}")
         points = np.asarray(points, dtype=float)
@@ -89,7 +96,7 @@ class FieldAnchor(Regulariser):
         self.model = model
         self.points = points
         self.weight = float(weight)
-        radius = getattr(term, "envelope_radius", None) or 1.0
+        radius = term.envelope_radius
         self._row_scale = np.sqrt(self.weight) * (np.linalg.norm(points, axis=1) / radius) ** 4
         target = np.asarray(target, dtype=float)[: model.n_learn]
         values, _ = evaluate_field_parameter_gradient(model, target, points)
@@ -134,11 +141,8 @@ class RowRegularisers(Regulariser):
         )
 
     def describe(self) -> dict:
-        """The parts' summaries, merged."""
-        out: dict = {}
-        for p in self.parts:
-            out |= p.describe()
-        return out
+        """The parts' summaries, each under its record's name (as :meth:`record`)."""
+        return self.record()
 
     def record(self) -> dict:
         """The parts' record entries, merged."""

@@ -31,7 +31,9 @@ class StageRecord:
     arcs among them (global indices), whether the fit was warm-started, its result, and
     ``relative_cost``: the stage's cost on its validation arcs (its training arcs when it has
     none, ``checked_on`` says which) over the cost of no correction on them
-    (:mod:`hamgrav.fit.diagnostics`; None without learnable parameters)."""
+    (:mod:`hamgrav.fit.diagnostics`; None without learnable parameters); ``anchor``: the
+    field anchor the stage's fit ran with (weight, clearance [canonical length], points;
+    None: none)."""
 
     stage: int
     arcs: np.ndarray
@@ -40,6 +42,7 @@ class StageRecord:
     result: SolveResult
     relative_cost: float | None = None
     checked_on: str | None = None
+    anchor: dict | None = None
 
     @property
     def n_arcs(self) -> int:
@@ -56,6 +59,7 @@ class StageRecord:
             **self.result.summary(),
             "relative_cost": self.relative_cost,
             "checked_on": self.checked_on,
+            **({"anchor": self.anchor} if self.anchor else {}),
         }
 
 
@@ -118,8 +122,10 @@ class ContinualFit:
         out of training without a say (e.g. descents that should decide a refit on them).
         ``anchor``: a warm stage's learned field is held near the previous stage's at the
         harmonic penalty's collocation points farther than ``anchor.clearance`` from every
-        sample of the new arcs (:mod:`hamgrav.fit.anchor`); a network fit only, and refused
-        before the first stage or with ``warm_start`` off."""
+        sample of the new arcs (or from ``anchor.clear_of``; :mod:`hamgrav.fit.anchor`); a
+        network fit by LM only, refused before the first stage or with ``warm_start`` off; a
+        stage restarted cold (the previous model cannot propagate the new arcs) runs
+        without it, and its fit record has no "anchor"."""
         if arc_weights is not None:
             arc_weights = np.asarray(arc_weights, dtype=float)
             if arc_weights.shape != (self.arcs.n_arcs,):
@@ -167,7 +173,10 @@ class ContinualFit:
                     "the field anchor holds a stage near the previous one: fit a first stage "
                     "(with warm_start on) before anchoring one"
                 )
-            samples = self.arcs.states[new][..., :3] if len(new) else np.zeros((0, 3))
+            if anchor.clear_of is not None:
+                samples = anchor.clear_of
+            else:
+                samples = self.arcs.states[new][..., :3] if len(new) else np.zeros((0, 3))
             points = points_clear_of(
                 estimator.collocation_points(subset), samples, anchor.clearance
             )
@@ -195,6 +204,7 @@ class ContinualFit:
             if not warm:
                 raise
             # the previous stage's model does not carry the new arcs: restart this stage
+            # (without the anchor, which holds a warm start: its record then has none)
             warm = False
             estimator.fit(subset, validation=local_val, solver=solver, arc_weights=arc_weights)
         self._seen, self._held_out = seen, held_out
@@ -209,6 +219,13 @@ class ContinualFit:
             estimator.result_,
             relative,
             estimator.diagnostics_.get("checked_on"),
+            None
+            if anchored is None or not warm
+            else {
+                "weight": anchor.weight,
+                "clearance": anchor.clearance,
+                "points": len(anchored[0]),
+            },
         )
         if self.records:
             # only the newest stage's normal equations are added to: drop the older ones

@@ -312,9 +312,6 @@ def _anchored(problem, init: np.ndarray, anchor):
     if anchor is None:
         return problem
     points, weight = anchor
-    term = problem.model.learnable
-    if term is None or term.natural_regulariser != "harmonic":
-        raise InputError("the field anchor applies to a network fit (SH have Kaula's rule)")
     pull = FieldAnchor(problem.model, points, init, weight)
     return problem.with_regulariser(RowRegularisers(problem.regulariser, pull))
 
@@ -912,6 +909,16 @@ class GravityEstimator:
                 )
         _warn_if_underdetermined(problem, ensemble, arcs, train)
         solver = solver or (self.warm_solver if warm else None) or self.make_solver()
+        if anchor is not None:
+            term = model.learnable
+            if term is None or term.natural_regulariser != "harmonic":
+                raise InputError(
+                    "the field anchor needs a network (a learnable term with the harmonic "
+                    "penalty); SH have Kaula's rule"
+                )
+            if not isinstance(solver, LevenbergMarquardt):
+                # Adam's gradient leaves the regulariser out: the anchor would not act
+                raise InputError("the field anchor is a term of LM's objective: fit with LM")
         # the arcs the solver may select its returned iterate on (SH: none, only checked)
         seen = validation if self.solver_sees_validation else None
         kaula_scores = None
