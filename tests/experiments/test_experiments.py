@@ -505,20 +505,30 @@ def test_deep_tiny_with_whole_descents_all_trained(tmp_path):
     )
 
 
-def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
+def _deep_tiny_descent_refits(tmp_path, *options) -> tuple[dict, dict, dict, str]:
+    """The tiny deep run with three descents, each model refitted by 3 iterations and a
+    control, and ``options``: (its config, the network's and SH 2's descent refit records,
+    its README)."""
     out = tmp_path / "deep"
     args = [
         *TINY_DEEP, "--descents", "3", "--sh-degrees", "2", "--map-degrees", "2",
         "--map-points", "11", "--descent-degrees", "2", "--descent-iterations", "3",
-        "--descent-share", "0.2", "--descent-validation", "0.34", "--random-orders", "0",
-        "--no-d-optimal", "--descent-control", "-o", str(out),
+        "--random-orders", "0", "--no-d-optimal", "--descent-control", *options,
+        "-o", str(out),
     ]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     data = json.loads((out / "results.json").read_text())
-    assert data["config"]["descent_validation"] == 0.34
     fits = data["repetitions"][0]["descents"]["fits"]
-    net, sh = fits["network-best"], fits["sh2"]
+    readme = (out / "README.md").read_text()
+    return data["config"], fits["network-best"], fits["sh2"], readme
+
+
+def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
+    config, net, sh, readme = _deep_tiny_descent_refits(
+        tmp_path, "--descent-share", "0.2", "--descent-validation", "0.34"
+    )
+    assert config["descent_validation"] == 0.34
     # one descent of three held out of every refit, and the refits judged on it alone
     for f in (net, sh):
         assert f["n_validation_descents"] == 1 and f["checked_on"] == "validation arcs"
@@ -531,7 +541,6 @@ def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
     assert control["iterations"] == 9 and len(control["best_iterations"]) == 3
     # the training descents weigh at the share, the held-out one as they do
     assert 0 < net["descent_weight"] < 1 and net["arc_weights"]["n_not_one"] == 3
-    readme = (out / "README.md").read_text()
     assert "1 of the descents (seeded) held out of every refit, the rest trained" in readme
     assert "SH its own solver" in readme and "best_iterations" not in sh
     # the iterates chosen, by repetition, and the first repetition's refit and control
@@ -544,25 +553,15 @@ def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
 
 
 def test_deep_tiny_with_the_descent_refit_anchored(tmp_path):
-    out = tmp_path / "deep"
-    args = [
-        *TINY_DEEP, "--descents", "3", "--sh-degrees", "2", "--map-degrees", "2",
-        "--map-points", "11", "--descent-degrees", "2", "--descent-iterations", "3",
-        "--descent-anchor", "0.1", "--descent-anchor-clearance-rb", "0.2",
-        "--random-orders", "0", "--no-d-optimal", "--descent-control", "-o", str(out),
-    ]  # fmt: skip
-    result = runner.invoke(app, args)
-    assert result.exit_code == 0, result.output
-    data = json.loads((out / "results.json").read_text())
-    assert data["config"]["descent_anchor"] == 0.1
-    fits = data["repetitions"][0]["descents"]["fits"]
-    net, sh = fits["network-best"], fits["sh2"]
+    config, net, sh, readme = _deep_tiny_descent_refits(
+        tmp_path, "--descent-anchor", "0.1", "--descent-anchor-clearance-rb", "0.2"
+    )
+    assert config["descent_anchor"] == 0.1
     # the network's refit is anchored away from the descents, its control (no new arcs) at
     # the same points, and SH not at all
     assert net["anchor"]["weight"] == 0.1 and 0 < net["anchor"]["points"] < 1500
     assert net["control"]["anchor"] == net["anchor"]
     assert "anchor" not in sh
-    readme = (out / "README.md").read_text()
     assert "holds its learned field near the stage-6 fit's, with the weight 0.1" in readme
     assert "farther than 0.2 R_B from every descent sample (--descent-anchor)" in readme
     assert f"anchored at {net['anchor']['points']} points; its control" in readme

@@ -725,9 +725,7 @@ class DeepExperiment(Experiment):
                 if len(voting):
                     descent_fits[name]["n_validation_descents"] = len(voting)
                 if len(voting) and name == NETWORK:
-                    descent_fits[name]["best_iterations"] = [
-                        m.best_iteration for m in record.result.members if m is not None
-                    ] or [record.result.best_iteration]
+                    descent_fits[name]["best_iterations"] = _best_iterations(record.result)
                 if control is not None:
                     lap("descent_refits")
                     control_record = control.add(voting, **held, **stage)

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..core.model import Model, evaluate_field_parameter_gradient
 from ..core.problem import Regulariser
@@ -61,18 +62,8 @@ def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -
     samples = samples[np.isfinite(samples).all(axis=1)]  # a sample never propagated
     if clearance <= 0 or not len(samples):
         return points
-    keep = np.ones(len(points), dtype=bool)
-    # chunks of points keep the distance matrix small (samples run to tens of thousands)
-    for i in range(0, len(points), 256):
-        block = points[i : i + 256]
-        d2 = np.min(
-            np.sum(block**2, axis=1)[:, None]
-            - 2.0 * block @ samples.T
-            + np.sum(samples**2, axis=1)[None, :],
-            axis=1,
-        )
-        keep[i : i + 256] = d2 > clearance**2
-    return points[keep]
+    nearest, _ = cKDTree(samples).query(points)
+    return points[nearest > clearance]
 
 
 class FieldAnchor(Regulariser):

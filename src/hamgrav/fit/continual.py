@@ -173,12 +173,11 @@ class ContinualFit:
                     "the field anchor holds a stage near the previous one: fit a first stage "
                     "(with warm_start on) before anchoring one"
                 )
-            if anchor.clear_of is not None:
-                samples = anchor.clear_of
-            else:
-                samples = self.arcs.states[new][..., :3] if len(new) else np.zeros((0, 3))
+            clear_of = anchor.clear_of
+            if clear_of is None:
+                clear_of = self.arcs.states[new][..., :3]
             points = points_clear_of(
-                estimator.collocation_points(subset), samples, anchor.clearance
+                estimator.collocation_points(subset), clear_of, anchor.clearance
             )
             if not len(points):
                 raise InputError(
