@@ -42,6 +42,7 @@ BEFORE_THE_OPTION = {
     "descent_validation": 0.0,
     "descent_anchor": 0.0,
     "descent_anchor_clearance_rb": 0.1,
+    "descent_anchor_on": "acceleration",
     "network_start": "random",
 }
 

@@ -248,6 +248,10 @@ def test_descent_with_both_blocks_tiny(tmp_path):
             "--descent-anchor holds the descent refit near the stage-6 fit: give --descents",
         ),
         (["deep", "--descent-anchor", "-0.1"], "--descent-anchor must be at least 0"),
+        (
+            ["deep", "--descent-anchor-on", "geoid"],
+            "--descent-anchor-on must be one of acceleration, potential, got 'geoid'",
+        ),
         (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
         (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
         (["descent", "--altitude-m", "-5"], "--altitude-m must be above 0, got -5.0"),
@@ -554,15 +558,18 @@ def test_deep_tiny_with_descents_held_out_to_choose_the_refit(tmp_path):
 
 def test_deep_tiny_with_the_descent_refit_anchored(tmp_path):
     config, net, sh, readme = _deep_tiny_descent_refits(
-        tmp_path, "--descent-anchor", "0.1", "--descent-anchor-clearance-rb", "0.2"
+        tmp_path,
+        *("--descent-anchor", "0.1", "--descent-anchor-clearance-rb", "0.2"),
+        *("--descent-anchor-on", "potential"),
     )
-    assert config["descent_anchor"] == 0.1
+    assert config["descent_anchor"] == 0.1 and config["descent_anchor_on"] == "potential"
     # the network's refit is anchored away from the descents, its control (no new arcs) at
     # the same points, and SH not at all
     assert net["anchor"]["weight"] == 0.1 and 0 < net["anchor"]["points"] < 1500
+    assert net["anchor"]["quantity"] == "potential"
     assert net["control"]["anchor"] == net["anchor"]
     assert "anchor" not in sh
-    assert "holds its learned field near the stage-6 fit's, with the weight 0.1" in readme
+    assert "holds its learned potential near the stage-6 fit's, with the weight 0.1" in readme
     assert "farther than 0.2 R_B from every descent sample (--descent-anchor)" in readme
     assert f"anchored at {net['anchor']['points']} points; its control" in readme
     assert readme.count(f"anchored at {net['anchor']['points']} points") == 2

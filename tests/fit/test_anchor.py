@@ -42,10 +42,25 @@ def test_anchor_rows_are_the_weighted_change_of_the_field(start, moved):
     assert anchor.record() == {"anchor": {"weight": 0.2, "points": 4}}
 
 
-def test_anchor_jacobian_matches_finite_differences(start, moved):
-    anchor = FieldAnchor(NET, POINTS, start, 0.1)
+def test_the_potential_anchor_rows_are_the_unweighted_change_of_the_potential(start, moved):
+    """Rows: sqrt(w) (N(p) - N(p0)), no radial factor; the learned potential from the field
+    function (the dynamics' path), not the anchor's own."""
+    anchor = FieldAnchor(NET, POINTS, start, 0.2, quantity="potential")
+    assert np.array_equal(anchor.terms(start)[0], np.zeros(4))
+    v0 = evaluate_field(NET, start, POINTS)[0]
+    v1 = evaluate_field(NET, moved, POINTS)[0]
+    rows, jac = anchor.terms(moved)
+    np.testing.assert_allclose(rows, np.sqrt(0.2) * (v1 - v0), rtol=1e-10, atol=1e-14)
+    assert np.abs(rows).max() > 1e-4
+    assert jac.shape == (4, NET.n_learn)
+    assert anchor.record() == {"anchor": {"weight": 0.2, "points": 4, "quantity": "potential"}}
+
+
+@pytest.mark.parametrize("quantity", ["acceleration", "potential"])
+def test_anchor_jacobian_matches_finite_differences(start, moved, quantity):
+    anchor = FieldAnchor(NET, POINTS, start, 0.1, quantity=quantity)
     _, jac = anchor.terms(moved)
-    assert jac.shape == (12, NET.n_learn)
+    assert jac.shape == (12 if quantity == "acceleration" else 4, NET.n_learn)
     for j in (0, 9, NET.n_learn - 2, NET.n_learn - 1):
         step = np.zeros_like(moved)
         step[j] = 1e-6
@@ -62,6 +77,10 @@ def test_anchor_refuses_what_it_cannot_hold(start):
         AnchorSettings(-1.0, 0.1)
     with pytest.raises(InputError, match="clearance must be >= 0"):
         AnchorSettings(0.1, -1.0)
+    with pytest.raises(InputError, match="acceleration or potential, got 'geoid'"):
+        AnchorSettings(0.1, 0.1, quantity="geoid")
+    with pytest.raises(InputError, match="acceleration or potential"):
+        FieldAnchor(NET, POINTS, start, 0.1, quantity="geoid")
 
 
 def test_points_clear_of_keeps_exactly_the_points_beyond_the_clearance():
@@ -105,9 +124,11 @@ def _network(truth, members: int = 2) -> GravityEstimator:
     )
 
 
-@pytest.mark.parametrize("members", [1, 2])
+@pytest.mark.parametrize(
+    "members, quantity", [(1, "acceleration"), (2, "acceleration"), (2, "potential")]
+)
 def test_an_anchored_stage_holds_the_field_where_its_new_arcs_do_not_reach(
-    small_arcs, synthetic_truth, members
+    small_arcs, synthetic_truth, members, quantity
 ):
     """A warm stage with a tight anchor keeps each member's field (or the one network's) at
     the points clear of its new arcs, where the same stage without it moves it by far more;
@@ -119,22 +140,25 @@ def test_an_anchored_stage_holds_the_field_where_its_new_arcs_do_not_reach(
     solver = LevenbergMarquardt(max_iter=10, rtol=0.0)
     new = np.arange(5, 9)
     free.add(new, validate=False, solver=solver)
-    held.add(new, validate=False, solver=solver, anchor=AnchorSettings(1e3, clearance=0.3))
+    settings = AnchorSettings(1e3, clearance=0.3, quantity=quantity)
+    held.add(new, validate=False, solver=solver, anchor=settings)
     est = held.estimator
     subset = small_arcs.subset(np.setdiff1d(np.arange(9), first.validation))
     points = points_clear_of(est.collocation_points(subset), small_arcs.states[new][..., :3], 0.3)
     assert 0 < len(points) < 1500
-    assert est.fitted_.solver["anchor"] == {"weight": 1e3, "points": len(points)}
-    stage = {"weight": 1e3, "clearance": 0.3, "points": len(points)}
+    named = {"quantity": "potential"} if quantity == "potential" else {}
+    assert est.fitted_.solver["anchor"] == {"weight": 1e3, "points": len(points), **named}
+    stage = {"weight": 1e3, "clearance": 0.3, "points": len(points), **named}
     assert held.records[-1].summary()["anchor"] == stage
     assert "anchor" not in free.records[-1].summary()
     term = est.model_.learnable
     member = est.model_.member() if members > 1 else est.model_
+    column = 0 if quantity == "potential" else 1
     for k in range(members):
         start, after_free, after_held = (
-            evaluate_field(member, term.split_members(fit.params)[k], points)[1]
+            evaluate_field(member, term.split_members(fit.params)[k], points)[column]
             if members > 1
-            else evaluate_field(member, fit.params, points)[1]
+            else evaluate_field(member, fit.params, points)[column]
             for fit in (run, free, held)
         )
         size = np.abs(start).max()

@@ -66,7 +66,7 @@ from ..bodies.evaluation import (
 from ..bodies.interiors import Truth
 from ..core.arcs import Arcs, join_arcs, sample_radii
 from ..errors import InputError
-from ..fit.anchor import AnchorSettings
+from ..fit.anchor import ANCHOR_QUANTITIES, AnchorSettings
 from ..fit.continual import ContinualFit
 from ..fit.design import d_optimal_campaign, orbit_plans
 from ..fit.estimator import NETWORK_STARTS, NETWORK_WARM_SOLVER, validation_split
@@ -314,6 +314,12 @@ class DeepExperimentConfig(DeepCampaignConfig):
         "sample are free of the anchor.",
         at_least=0,
     )
+    descent_anchor_on: str = option(
+        "acceleration",
+        "With descent_anchor: the learned field's quantity held, 'acceleration' (rows "
+        "weighted by (r/R_w)^4) or 'potential' (unweighted rows, so a change near the surface "
+        "counts as the relative field error counts it).",
+    )
     random_orders: int = option(
         5,
         "Random arrival orders of the same orbits, network only, seeded by the seed (0: off).",
@@ -338,6 +344,11 @@ class DeepExperimentConfig(DeepCampaignConfig):
             raise InputError(
                 f"{label('descent_share')} must be 0 (unweighted) or lie in (0, 1), e.g. 0.2; "
                 f"got {self.descent_share}"
+            )
+        if self.descent_anchor_on not in ANCHOR_QUANTITIES:
+            raise InputError(
+                f"{label('descent_anchor_on')} must be one of {', '.join(ANCHOR_QUANTITIES)}, "
+                f"got {self.descent_anchor_on!r}"
             )
         if self.descent_anchor and not self.descents:
             raise InputError(
@@ -712,6 +723,7 @@ class DeepExperiment(Experiment):
                         config.descent_anchor,
                         config.descent_anchor_clearance_rb * truth.body.brillouin_radius,
                         clear_of=all_arcs.states[descent_idx][..., :3],
+                        quantity=config.descent_anchor_on,
                     )
                 # the same refit with no new arcs, from the same fit (descent_control); with
                 # held-out descents they still choose its iterate, and none trains

@@ -12,9 +12,17 @@ the warm start; R_w: the network's envelope radius; the factor (r / R_w)^4 weigh
 the envelope's own fall-off, a ~ r^-4, as the harmonic penalty does its Laplacian), with their
 exact Gauss-Newton Jacobians. The weight w is dimensionless and measured like the harmonic
 penalty's (:mod:`hamgrav.fit.harmonic`): on the sum over the points, against the arcs' cost in
-canonical units. The formal covariance (:mod:`hamgrav.fit.covariance`) leaves the anchor out:
-it holds the fit near an earlier fit of the same arcs, whose information the covariance
-already counts.
+canonical units. With ``quantity="potential"`` the rows are instead
+
+    sqrt(w) (N(x_k; p) - N(x_k; p_0))
+
+on the learned potential N itself, with no radial factor: every point weighs the change of
+the potential as the relative field error does (a sum of squared potential differences), so
+the anchor holds the field near the surface (where the envelope (R_w / r)^3 amplifies a
+change of the network) as firmly as the acceleration form holds it far out.
+
+The formal covariance (:mod:`hamgrav.fit.covariance`) leaves the anchor out: it holds the fit
+near an earlier fit of the same arcs, whose information the covariance already counts.
 """
 
 from __future__ import annotations
@@ -28,7 +36,15 @@ from ..core.model import Model, evaluate_field_parameter_gradient
 from ..core.problem import Regulariser
 from ..errors import InputError
 
-__all__ = ["FieldAnchor", "AnchorSettings", "RowRegularisers", "points_clear_of"]
+ANCHOR_QUANTITIES = ("acceleration", "potential")
+
+__all__ = [
+    "ANCHOR_QUANTITIES",
+    "FieldAnchor",
+    "AnchorSettings",
+    "RowRegularisers",
+    "points_clear_of",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,17 +53,23 @@ class AnchorSettings:
     anchor's rows; ``clearance`` [canonical length, >= 0] frees the collocation points within
     that distance of any sample of the new arcs, or of the positions ``clear_of`` (..., 3)
     [canonical] when given (e.g. a control refit without the new arcs, anchored at the same
-    points as the refit with them)."""
+    points as the refit with them); ``quantity``: "acceleration" or "potential", the rows of
+    the module."""
 
     weight: float
     clearance: float
     clear_of: np.ndarray | None = None
+    quantity: str = "acceleration"
 
     def __post_init__(self):
         if not (np.isfinite(self.weight) and self.weight > 0):
             raise InputError(f"the anchor's weight must be positive, got {self.weight}")
         if not (np.isfinite(self.clearance) and self.clearance >= 0):
             raise InputError(f"the anchor's clearance must be >= 0, got {self.clearance}")
+        if self.quantity not in ANCHOR_QUANTITIES:
+            raise InputError(
+                f"the anchor holds {' or '.join(ANCHOR_QUANTITIES)}, got {self.quantity!r}"
+            )
 
 
 def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -> np.ndarray:
@@ -69,9 +91,17 @@ def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -
 class FieldAnchor(Regulariser):
     """The anchor rows of the module at ``points`` (k, 3, canonical) towards the learnable
     field of ``model`` at ``target`` (its first ``n_learn`` entries), with ``weight`` w
-    (dimensionless). :meth:`terms` gives 3k rows and their Jacobian (3k, n_learn)."""
+    (dimensionless), on the learned field's ``quantity`` ("acceleration": :meth:`terms` gives
+    3k rows and their Jacobian (3k, n_learn); "potential": k rows, (k, n_learn))."""
 
-    def __init__(self, model: Model, points: np.ndarray, target: np.ndarray, weight: float):
+    def __init__(
+        self,
+        model: Model,
+        points: np.ndarray,
+        target: np.ndarray,
+        weight: float,
+        quantity: str = "acceleration",
+    ):
         term = model.learnable
         if term is None or model.n_learn == 0 or term.natural_regulariser != "harmonic":
             raise InputError(
@@ -84,25 +114,36 @@ class FieldAnchor(Regulariser):
             raise InputError("the anchor needs a nonempty (k, 3) array of points")
         if not np.isfinite(points).all():
             raise InputError("the anchor's points must be finite")
+        if quantity not in ANCHOR_QUANTITIES:
+            raise InputError(f"the anchor holds {' or '.join(ANCHOR_QUANTITIES)}, got {quantity!r}")
         self.model = model
         self.points = points
         self.weight = float(weight)
-        radius = term.envelope_radius
-        self._row_scale = np.sqrt(self.weight) * (np.linalg.norm(points, axis=1) / radius) ** 4
+        self.quantity = quantity
+        # columns of evaluate_field_parameter_gradient: N, then its spatial gradient
+        self._columns = slice(0, 1) if quantity == "potential" else slice(1, 4)
+        radial = 1.0
+        if quantity == "acceleration":
+            radial = (np.linalg.norm(points, axis=1) / term.envelope_radius) ** 4
+        self._row_scale = np.sqrt(self.weight) * np.broadcast_to(radial, len(points))
         target = np.asarray(target, dtype=float)[: model.n_learn]
         values, _ = evaluate_field_parameter_gradient(model, target, points)
-        self._target = values[:, 1:].copy()
+        self._target = values[:, self._columns].copy()
 
     def terms(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Residual rows (3k,) and their Jacobian (3k, n_learn) at ``params``."""
+        """Residual rows (3k, or k for the potential) and their Jacobian (rows, n_learn) at
+        ``params``."""
         values, grad = evaluate_field_parameter_gradient(self.model, params, self.points)
-        rows = self._row_scale[:, None] * (values[:, 1:] - self._target)
-        jac = self._row_scale[:, None, None] * grad[:, 1:, :]
+        rows = self._row_scale[:, None] * (values[:, self._columns] - self._target)
+        jac = self._row_scale[:, None, None] * grad[:, self._columns, :]
         return rows.reshape(-1), jac.reshape(-1, jac.shape[-1])
 
     def describe(self) -> dict:
-        """Plain-data summary for fit records."""
-        return {"weight": self.weight, "points": len(self.points)}
+        """Plain-data summary for fit records (the quantity when not the acceleration)."""
+        out = {"weight": self.weight, "points": len(self.points)}
+        if self.quantity != "acceleration":
+            out["quantity"] = self.quantity
+        return out
 
     def record(self) -> dict:
         """The fit record's "anchor" entry: :meth:`describe`."""

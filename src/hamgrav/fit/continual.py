@@ -184,7 +184,7 @@ class ContinualFit:
                     f"no collocation point lies farther than {anchor.clearance:g} (canonical) "
                     "from the new arcs: give the anchor a smaller clearance"
                 )
-            anchored = (points, anchor.weight)
+            anchored = (points, anchor.weight, anchor.quantity)
         # the previous stage's training arcs keep their indices (arcs are appended), so its
         # normal equations at theta are added to rather than formed again
         previous = self.records[-1].result if warm else None
@@ -224,6 +224,7 @@ class ContinualFit:
                 "weight": anchor.weight,
                 "clearance": anchor.clearance,
                 "points": len(anchored[0]),
+                **({"quantity": anchor.quantity} if anchor.quantity != "acceleration" else {}),
             },
         )
         if self.records:

@@ -307,12 +307,11 @@ def noise_whitening(arcs: Arcs) -> np.ndarray:
 
 
 def _anchored(problem, init: np.ndarray, anchor):
-    """``problem`` with the field anchor (points, weight) towards ``init``'s learned field
-    added to its regulariser; ``problem`` itself without ``anchor``."""
+    """``problem`` with the field anchor (points, weight[, quantity]) towards ``init``'s
+    learned field added to its regulariser; ``problem`` itself without ``anchor``."""
     if anchor is None:
         return problem
-    points, weight = anchor
-    pull = FieldAnchor(problem.model, points, init, weight)
+    pull = FieldAnchor(problem.model, anchor[0], init, anchor[1], *anchor[2:])
     return problem.with_regulariser(RowRegularisers(problem.regulariser, pull))
 
 
@@ -825,7 +824,7 @@ class GravityEstimator:
         reuse: SolveResult | None = None,
         warm: bool | None = None,
         arc_weights: np.ndarray | None = None,
-        anchor: tuple[np.ndarray, float] | None = None,
+        anchor: tuple | None = None,
     ) -> GravityEstimator:
         """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
         stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`),
@@ -843,8 +842,9 @@ class GravityEstimator:
         final fit). ``arc_weights`` (n_arcs,): each arc's weight in the cost, training and
         validation alike (:class:`~hamgrav.core.problem.ArcProblem`; e.g. a set of arcs
         deweighted as a whole; recorded in ``fitted_.solver``); not with hyperparameters to
-        choose. ``anchor`` (points (k, 3) canonical, weight): a warm network fit's
-        learned field is held near ``init``'s at the points, with the weight
+        choose. ``anchor`` (points (k, 3) canonical, weight[, quantity "acceleration" (the
+        default) or "potential"]): a warm network fit's learned field is held near
+        ``init``'s at the points, with the weight
         (:class:`~hamgrav.fit.anchor.FieldAnchor`, each ensemble member near its own
         block; in the training objective only, recorded in ``fitted_.solver``)."""
         self.selection_ = []
@@ -1081,6 +1081,8 @@ class GravityEstimator:
             solver_info |= problem.regulariser.record()
         if anchor is not None:
             solver_info["anchor"] = {"weight": float(anchor[1]), "points": len(anchor[0])}
+            if anchor[2:] and anchor[2] != "acceleration":
+                solver_info["anchor"]["quantity"] = anchor[2]
         if isinstance(solver, LevenbergMarquardt):
             # every LM fit records its Kaula weight (0: none), as model files always have
             solver_info.setdefault("kaula_alpha", 0.0)

@@ -415,7 +415,8 @@ def _descents_section(report: dict, net: str) -> list[str]:
     anchor = cfg.get("descent_anchor", 0.0)
     if anchor:
         refit += (
-            f"; the network's refit holds its learned field near the stage-6 fit's, with "
+            f"; the network's refit holds its learned "
+            f"{cfg.get('descent_anchor_on', 'acceleration')} near the stage-6 fit's, with "
             f"the weight {anchor:g}, at the collocation points farther than "
             f"{cfg['descent_anchor_clearance_rb']:g} R_B from every descent sample "
             "(--descent-anchor)"
