@@ -47,3 +47,21 @@ def test_pointwise_errors_are_the_one_point_field_error():
     # no correction is 1 at every point
     none = pointwise_field_errors(Model((PointMass(),)), np.zeros(0), truth, pts)
     assert np.allclose(none, 1.0, rtol=1e-12)
+
+
+def test_member_spread_is_the_members_standard_deviation_over_sqrt_members():
+    """Two members: std (ddof 1) / sqrt 2 = |N_0 - N_1| / 2, each member's potential from
+    its own one-network model; a single network has no spread."""
+    from hamgrav.core.fields import member_spread
+    from hamgrav.core.model import evaluate_field
+    from hamgrav.core.terms import NeuralPotential
+
+    pair = Model((PointMass(),), NeuralPotential((4,), members=2))
+    params = pair.learnable.initial_params(5)
+    points = np.array([[1.2, 0.3, -0.2], [0.1, -1.5, 0.4], [2.0, 0.0, 1.0]])
+    one = Model((PointMass(),), NeuralPotential((4,)))
+    n0, n1 = (evaluate_field(one, b, points)[0] for b in pair.learnable.split_members(params))
+    spread = member_spread(pair, params, points)
+    np.testing.assert_allclose(spread, np.abs(n0 - n1) / 2, rtol=1e-12)
+    assert spread.min() > 0
+    np.testing.assert_array_equal(member_spread(one, params[: one.n_learn], points), 0.0)

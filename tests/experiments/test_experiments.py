@@ -419,6 +419,14 @@ def test_deep_tiny(tmp_path):
     assert (
         after["deepest_bin_after"] == rep["deep_bins_after_descents"]["network-best"]["0.25-0.45"]
     )
+    # what the refit did on the deep set, told without the truth: for the ensemble only
+    assert after["deep_change"] > 0
+    assert after["deep_spread_before"] > 0 and after["deep_spread_after"] > 0
+    assert "deep_change" not in rep["descents_summary"]["sh3"]
+    assert (
+        f"- seed 0, network-best: change {after['deep_change']:.3g}, spread "
+        f"{after['deep_spread_before']:.3g} -> {after['deep_spread_after']:.3g}" in readme
+    )
     # the orders: two random permutations of the same orbits, D-optimal flies each once
     orders = rep["orders"]
     assert orders["n_orbits"] == [2, 4] and orders["fixed"] == [

@@ -20,6 +20,7 @@ __all__ = [
     "equatorial_grid",
     "exterior_points",
     "significant",
+    "deep_set",
     "deep_bin_errors",
     "equatorial_error_map",
 ]
@@ -108,6 +109,13 @@ def exterior_points(body: Body, max_radius: float, n: int = 1500, *, seed: int =
 def significant(x: float) -> float | None:
     """A finite error rounded to 4 significant digits, or None (empty set, overflow)."""
     return float(f"{x:.4g}") if np.isfinite(x) else None
+
+
+def deep_set(body: Body, altitude_m: float, seed: int) -> np.ndarray:
+    """The deep set: the surface-following points ``altitude_m`` [m] above the surface that
+    lie inside the Brillouin sphere (n, 3) [canonical] (seeded as :func:`evaluation_sets`)."""
+    surface = evaluation_sets(body, (), (altitude_m,), seed=seed)[f"h{altitude_m:g}m"]
+    return surface[np.linalg.norm(surface, axis=1) < body.brillouin_radius]
 
 
 def deep_bin_errors(fitted: dict, truth: Truth, altitude_m: float, bins_rb, seed: int) -> dict:

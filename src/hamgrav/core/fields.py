@@ -23,6 +23,7 @@ __all__ = [
     "model_perturbing_potential",
     "field_errors",
     "pointwise_field_errors",
+    "member_spread",
 ]
 
 
@@ -106,3 +107,19 @@ def pointwise_field_errors(
     potential crosses zero the ratio grows without bound for every model."""
     target = perturbing_potential(truth, points)
     return np.abs(model_perturbing_potential(model, params, points) - target) / np.abs(target)
+
+
+def member_spread(model: Model, params: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The standard deviation of an ensemble's members' learned potentials at ``points``
+    (n, 3), divided by sqrt(members): how far the ensemble's mean would move with other
+    initialisations (n,) [canonical potential]. Needs no truth; zeros for one network."""
+    term = model.learnable
+    points = np.atleast_2d(np.asarray(points, dtype=float))
+    if term is None or term.members < 2:
+        return np.zeros(len(points))
+    member = model.member()
+    values = [
+        evaluate_field(member, block, points, which="learnable")[0]
+        for block in term.split_members(np.asarray(params, dtype=float)[: model.n_learn])
+    ]
+    return np.std(values, axis=0, ddof=1) / np.sqrt(term.members)

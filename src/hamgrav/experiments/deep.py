@@ -60,11 +60,13 @@ import numpy as np
 
 from ..bodies.evaluation import (
     deep_bin_errors,
+    deep_set,
     equatorial_error_map,
     significant,
 )
 from ..bodies.interiors import Truth
 from ..core.arcs import Arcs, join_arcs, sample_radii
+from ..core.fields import member_spread, model_perturbing_potential
 from ..errors import InputError
 from ..fit.anchor import ANCHOR_QUANTITIES, AnchorSettings
 from ..fit.continual import ContinualFit
@@ -477,6 +479,39 @@ def _best_iterations(result) -> list[int]:
     return [m.best_iteration for m in result.members if m is not None] or [result.best_iteration]
 
 
+def _refit_agreement(before: dict, after: dict, truth: Truth, config, ctx) -> dict:
+    """For each ensemble ({name: (model, params)} in both), what the descent refit did to
+    the deep set, without the truth: ``deep_change``, the RMS change of the perturbing
+    potential, and ``deep_spread_before`` / ``_after``, the RMS of the members' spread
+    (:func:`~hamgrav.core.fields.member_spread`), each over the RMS of the perturbing
+    potential before the refit. A change the members agree on is one the arcs determine."""
+    points = deep_set(truth.body, config.altitude_m, ctx.seed)
+    out = {}
+    for name, (model, params) in after.items():
+        if name not in before or model.learnable is None or model.learnable.members < 2:
+            continue
+        m0, p0 = before[name]
+        v0 = model_perturbing_potential(m0, p0, points)
+        v1 = model_perturbing_potential(model, params, points)
+        size = np.sqrt(np.mean(v0**2))
+        parts = {
+            "deep_change": v1 - v0,
+            "deep_spread_before": member_spread(m0, p0, points),
+            "deep_spread_after": member_spread(model, params, points),
+        }
+        out[name] = {k: significant(float(np.sqrt(np.mean(v**2)) / size)) for k, v in parts.items()}
+    if out:
+        ctx.say(
+            "the descent refit on the deep set (no truth; relative RMS): "
+            + ", ".join(
+                f"{n} change {a['deep_change']}, members' spread {a['deep_spread_before']} -> "
+                f"{a['deep_spread_after']}"
+                for n, a in out.items()
+            )
+        )
+    return out
+
+
 def _bin_summary(by_bin: dict) -> tuple[float | None, float | None]:
     """(deepest, worst) of a model's bins: the first bin holding points, and the largest."""
     values = [v for v in by_bin.values() if v is not None]
@@ -803,6 +838,8 @@ class DeepExperiment(Experiment):
             result.update(
                 self._after_descents(after, summary, truth, shells, config, ctx, controls)
             )
+            for name, agreement in _refit_agreement(finals, after, truth, config, ctx).items():
+                result["descents_summary"][name].update(agreement)
             result["descents"] = {**descents, "fits": descent_fits}
             lap("evaluate_descents")
         result.update(self._orders(arcs, truth, best, sizes, stages, shells, tracking, ctx, config))

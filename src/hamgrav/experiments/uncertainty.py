@@ -27,8 +27,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..core.fields import MAX_SHELL_RB, model_perturbing_potential, perturbing_potential
-from ..core.model import evaluate_field
+from ..core.fields import (
+    MAX_SHELL_RB,
+    member_spread,
+    model_perturbing_potential,
+    perturbing_potential,
+)
 from ..core.uncertainty import potential_gradient
 from ..fit.covariance import RANK_THRESHOLD, calibration, normal_system
 from ..fit.estimator import fitted_harmonic_penalty, noise_sigmas
@@ -198,7 +202,7 @@ class UncertaintyExperiment(Experiment):
                     extra["block_diagonal_sigma_ratio"][set_name] = round(
                         float(np.sqrt(np.mean(block**2) / np.mean(sigma**2))), 4
                     )
-                    members = _member_spread(model, params, pts)
+                    members = member_spread(model, params, pts)
                     extra["spread"][set_name] = _row(err, members, scale)
                     extra["formal_plus_spread"][set_name] = _row(
                         err, np.hypot(sigma, members), scale
@@ -252,15 +256,3 @@ def _refit_spread(config, ctx, truth, arcs, rows, fits, sets) -> dict:
         n: {s: np.std(v, axis=0, ddof=1) for s, v in per_set.items()}
         for n, per_set in values.items()
     }
-
-
-def _member_spread(model, params, points) -> np.ndarray:
-    """The standard deviation of the members' potentials / sqrt(members) at ``points``
-    (canonical): how far the ensemble's mean would move with other initialisations."""
-    term = model.learnable
-    member = replace(model, learnable=term.member())
-    values = [
-        evaluate_field(member, block, points, which="learnable")[0]
-        for block in term.split_members(params[: model.n_learn])
-    ]
-    return np.std(values, axis=0, ddof=1) / np.sqrt(term.members)

@@ -505,6 +505,28 @@ def _descents_section(report: dict, net: str) -> list[str]:
         for m, by_rep in chosen.items():
             if all(by_rep):
                 lines.append(f"- {m}: " + "; ".join(", ".join(map(str, v)) for v in by_rep))
+    agreement = [
+        (r["seed"], m, r["descents_summary"][m])
+        for r in reps
+        for m in r.get("descents_summary", {})
+        if "deep_change" in r["descents_summary"][m]
+    ]
+    if agreement:
+        lines += [
+            "",
+            "What each ensemble's refit did on the deep set, told without the truth (RMS over "
+            "the set, relative to the RMS of the perturbing potential before the refit): the "
+            "change of the members' mean, and the members' spread (their standard deviation "
+            "over sqrt(members)) before -> after; beside it the truth's verdict, the deep-set "
+            "error before -> after, by repetition:",
+            "",
+        ]
+        for seed, m, a in agreement:
+            lines.append(
+                f"- seed {seed}, {m}: change {a['deep_change']:.3g}, spread "
+                f"{a['deep_spread_before']:.3g} -> {a['deep_spread_after']:.3g}; error "
+                f"{a['deep_before']:.3g} -> {a['deep_after']:.3g}"
+            )
     with_descents = [r for r in reps if "descents" in r]
     restarts = {
         m: sum(not r["descents"]["fits"][m]["warm_started"] for r in with_descents) for m in fits
