@@ -583,3 +583,100 @@ def test_evaluate_figure_needs_arcs_without_a_truth(arcs_file, small_arcs, tmp_p
     assert result.exit_code == 2
     assert "residual figures are drawn for arcs without a truth" in result.output
     assert not png.exists()
+
+
+def test_fit_init_with_an_anchor_holds_the_field_where_the_new_arcs_do_not_reach(
+    small_arcs, synthetic_truth, tmp_path
+):
+    """``--init M --anchor W``: the stage's learned field stays at the continued model's at
+    the collocation points clear of the new arcs (recomputed here), where the same stage
+    without the anchor moves it; the model file records the anchor, and the checkpoint's
+    identity carries it (a resume under another anchor is refused)."""
+    from hamgrav.core.model import evaluate_field
+    from hamgrav.fit.anchor import AnchorSettings, points_clear_of
+    from hamgrav.fit.estimator import GravityEstimator
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.fit_run import prepare_fit
+    from hamgrav.io.models import load_model
+
+    first = save_arcs(small_arcs.subset(range(5)), tmp_path / "first.h5")
+    everything = save_arcs(small_arcs, tmp_path / "all.h5")
+    stage1, free, held = (tmp_path / f"{n}.h5" for n in ("s1", "free", "held"))
+    base = ["--model", "network-best", "--hidden", "4"]
+    assert runner.invoke(app, ["fit", str(first), *base, "-o", str(stage1)]).exit_code == 0
+    go = ["fit", str(everything), *base, "--init", str(stage1)]
+    assert runner.invoke(app, [*go, "-o", str(free)]).exit_code == 0
+    anchored = [*go, "--anchor", "1e3", "--anchor-clearance-m", "200"]
+    result = runner.invoke(app, [*anchored, "-o", str(held)])
+    assert result.exit_code == 0, result.output
+    start, after_free, after_held = (load_model(p) for p in (stage1, free, held))
+    body = synthetic_truth.body
+    clearance = body.units.to_length(200.0)
+    est = GravityEstimator("network", hidden=(4,), body=body)
+    points = points_clear_of(
+        est.collocation_points(small_arcs), small_arcs.states[5:][..., :3], clearance
+    )
+    assert 0 < len(points) < 1500
+    record = after_held.stages[-1]["anchor"]
+    assert record == {"weight": 1e3, "points": len(points), "clearance": clearance}
+    assert after_held.solver["anchor"] == {"weight": 1e3, "points": len(points)}
+    assert "anchor" not in after_free.stages[-1]
+    member = start.model.member()
+    term = start.model.learnable
+    for k in range(term.members):
+        a0, a_free, a_held = (
+            evaluate_field(member, term.split_members(m.params[: term.n_params])[k], points)[1]
+            for m in (start, after_free, after_held)
+        )
+        size = np.abs(a0).max()
+        assert np.abs(a_free - a0).max() > 0.05 * size
+        assert np.abs(a_held - a0).max() < 1e-3 * size
+    # the anchor is part of the fit's identity: a checkpoint of another anchor is not resumed
+    prepared = [
+        prepare_fit(
+            GravityEstimator("network", hidden=(4,), members=3, body=body),
+            small_arcs,
+            tmp_path / "x.h5",
+            init=start,
+            anchor=AnchorSettings(w, clearance),
+        ).identity
+        for w in (1e3, 1e2)
+    ]
+    assert prepared[0]["anchor"]["weight"] == 1e3 and prepared[0] != prepared[1]
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--anchor", "1e-4"], "--anchor holds a continued fit near the model it continues"),
+        (["--anchor-on", "potential"], "--anchor-on sets the field anchor: give --anchor W"),
+        (["--anchor", "0", "--init", "M"], "--anchor must be a finite number > 0, got 0.0"),
+        (["--anchor", "1", "--init", "M", "--anchor-on", "geoid"], "one of acceleration, pot"),
+        (["--anchor", "1", "--init", "M", "--anchor-clearance-m", "-1"], "must be a finite"),
+    ],
+)
+def test_fit_anchor_options_are_checked_first(small_arcs, tmp_path, extra, message):
+    from hamgrav.io.arcs import save_arcs
+
+    arcs = save_arcs(small_arcs, tmp_path / "all.h5")
+    extra = [str(tmp_path / "m.h5") if e == "M" else e for e in extra]
+    result = runner.invoke(app, ["fit", str(arcs), "-o", str(tmp_path / "o.h5"), *extra])
+    assert result.exit_code == 2 and message in result.output, result.output
+
+
+def test_fit_anchor_needs_arcs_that_extend_the_models_own(small_arcs, tmp_path):
+    from hamgrav.io.arcs import save_arcs
+
+    first = save_arcs(small_arcs.subset(range(5)), tmp_path / "first.h5")
+    shuffled = save_arcs(small_arcs.subset([1, 0, *range(2, 9)]), tmp_path / "shuffled.h5")
+    stage1 = tmp_path / "s1.h5"
+    for model in (["--model", "network-best", "--hidden", "4"], ["--model", "sh:2"]):
+        assert runner.invoke(app, ["fit", str(first), *model, "-o", str(stage1)]).exit_code == 0
+        go = ["fit", "--init", str(stage1), "--anchor", "1", "-o", str(tmp_path / "o.h5")]
+        same = runner.invoke(app, [*go, str(first), *model])
+        other = runner.invoke(app, [*go, str(shuffled), *model])
+        if model[1] == "sh:2":
+            assert other.exit_code == 2 and "needs a network" in other.output, other.output
+            continue
+        assert same.exit_code == 2 and "5 arcs given, and none is new" in same.output
+        assert other.exit_code == 2 and "their first ones differ" in other.output

@@ -943,6 +943,32 @@ InitOption = Annotated[
         "so far: a continual stage, recorded in the model file's stage history.",
     ),
 ]
+AnchorOption = Annotated[
+    float | None,
+    typer.Option(
+        help="With --init: hold the learned field near the continued model's where the new "
+        "arcs (those in ARCS after the model's own) do not reach, with this weight w "
+        "(dimensionless, measured like --harmonic's, e.g. 1e-4): new tracking corrects the "
+        "field where it flies, not everywhere. Network fitted by LM only.",
+    ),
+]
+AnchorClearanceOption = Annotated[
+    float | None,
+    typer.Option(
+        "--anchor-clearance-m",
+        help="With --anchor: the harmonic penalty's collocation points within this distance "
+        "[m] of a new arc's sample are free of the anchor (default: 0.1 of the Brillouin "
+        "radius).",
+    ),
+]
+AnchorOnOption = Annotated[
+    str | None,
+    typer.Option(
+        help="With --anchor: the quantity held, 'acceleration' (rows weighted by (r/R_B)^4; "
+        "the default) or 'potential' (unweighted, as the relative field error counts a "
+        "change near the surface).",
+    ),
+]
 StepsOption = Annotated[
     int, typer.Option(help="Adam steps (when the solver is Adam; LM ignores it).")
 ]
@@ -989,6 +1015,9 @@ def fit(
     folds: FoldsOption = 5,
     cv_group: CvGroupOption = None,
     init: InitOption = None,
+    anchor: AnchorOption = None,
+    anchor_clearance_m: AnchorClearanceOption = None,
+    anchor_on: AnchorOnOption = None,
     steps: StepsOption = 1500,
     learning_rate: LearningRateOption = 1e-2,
     seed: Annotated[int, typer.Option(help="Seed (initialisation, split, batches).")] = 0,
@@ -1015,6 +1044,7 @@ def fit(
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)
     shared = _share(share)
+    _anchor_options(anchor, anchor_clearance_m, anchor_on, init)
     limit = memory_limit(max_memory)
     _output(output, ARCS=arcs_file)  # -o MODEL --init MODEL continues the model in place
     ckpt = checkpoint_for_fit(output, resume)
@@ -1034,9 +1064,48 @@ def fit(
         checkpoint=ckpt,
         init_name="--init",
         arc_weights=weights,
+        anchor=_anchor_settings(anchor, anchor_clearance_m, anchor_on, body_obj),
     )
     _run_and_write(run, arcs_file, workers, scheduler, steps)
     _report_fit(estimator, output, settings["term"], strict)
+
+
+def _anchor_options(weight, clearance_m, quantity, init) -> None:
+    """Refuse field-anchor options that cannot act (see ``hamgrav fit --help``)."""
+    from .fit.anchor import ANCHOR_QUANTITIES
+
+    if weight is None:
+        given = {"--anchor-clearance-m": clearance_m, "--anchor-on": quantity}
+        for name, value in given.items():
+            if value is not None:
+                raise InputError(f"{name} sets the field anchor: give --anchor W too")
+        return
+    _number(weight, "--anchor", 0.0, open_low=True)
+    if init is None:
+        raise InputError(
+            "--anchor holds a continued fit near the model it continues: give --init MODEL"
+        )
+    if clearance_m is not None:
+        _number(clearance_m, "--anchor-clearance-m", 0.0)
+    if quantity is not None and quantity not in ANCHOR_QUANTITIES:
+        raise InputError(
+            f"--anchor-on must be one of {', '.join(ANCHOR_QUANTITIES)}, got {quantity!r}"
+        )
+
+
+def _anchor_settings(weight, clearance_m, quantity, body):
+    """The field anchor of ``hamgrav fit`` (None without --anchor), its clearance in the
+    body's canonical length (default: 0.1 of the Brillouin radius)."""
+    from .fit.anchor import AnchorSettings
+
+    if weight is None:
+        return None
+    clearance = (
+        0.1 * body.brillouin_radius
+        if clearance_m is None
+        else float(body.units.to_length(clearance_m))
+    )
+    return AnchorSettings(float(weight), clearance, quantity=quantity or "acceleration")
 
 
 def _run_and_write(run, arcs_file: Path, workers: int, scheduler, steps: int) -> None:

@@ -40,6 +40,7 @@ ANCHOR_QUANTITIES = ("acceleration", "potential")
 
 __all__ = [
     "ANCHOR_QUANTITIES",
+    "Anchor",
     "FieldAnchor",
     "AnchorSettings",
     "RowRegularisers",
@@ -70,6 +71,34 @@ class AnchorSettings:
             raise InputError(
                 f"the anchor holds {' or '.join(ANCHOR_QUANTITIES)}, got {self.quantity!r}"
             )
+
+
+@dataclass(frozen=True, eq=False)
+class Anchor:
+    """A field anchor as a fit takes it (:meth:`hamgrav.fit.estimator.GravityEstimator.fit`):
+    ``points`` (k, 3) [canonical], ``weight`` w, ``quantity`` (see the module) and
+    ``target``, the learnable parameters whose field is held (None: the fit's ``init``; an
+    ensemble's members each held near their own block)."""
+
+    points: np.ndarray
+    weight: float
+    quantity: str = "acceleration"
+    target: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, value) -> Anchor | None:
+        """``value`` as an :class:`Anchor`: one already, None, or a tuple (points, weight[,
+        quantity[, target]])."""
+        if value is None or isinstance(value, cls):
+            return value
+        return cls(*value)
+
+    def record(self) -> dict:
+        """The fit record's "anchor" entry (the quantity when not the acceleration)."""
+        out = {"weight": float(self.weight), "points": len(self.points)}
+        if self.quantity != "acceleration":
+            out["quantity"] = self.quantity
+        return out
 
 
 def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -> np.ndarray:

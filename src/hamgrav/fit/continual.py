@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.arcs import Arcs
 from ..errors import InputError, PropagationError
-from .anchor import AnchorSettings, points_clear_of
+from .anchor import Anchor, AnchorSettings, points_clear_of
 from .base import Solver, SolveResult
 from .estimator import GravityEstimator, validation_split
 
@@ -184,7 +184,7 @@ class ContinualFit:
                     f"no collocation point lies farther than {anchor.clearance:g} (canonical) "
                     "from the new arcs: give the anchor a smaller clearance"
                 )
-            anchored = (points, anchor.weight, anchor.quantity)
+            anchored = Anchor(points, anchor.weight, anchor.quantity)
         # the previous stage's training arcs keep their indices (arcs are appended), so its
         # normal equations at theta are added to rather than formed again
         previous = self.records[-1].result if warm else None
@@ -223,7 +223,7 @@ class ContinualFit:
             else {
                 "weight": anchor.weight,
                 "clearance": anchor.clearance,
-                "points": len(anchored[0]),
+                "points": len(anchored.points),
                 **({"quantity": anchor.quantity} if anchor.quantity != "acceleration" else {}),
             },
         )

@@ -42,7 +42,7 @@ from ..core.terms import GravityTerm, MasconTerm, NeuralPotential, PointMass, Sp
 from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
-from .anchor import FieldAnchor, RowRegularisers
+from .anchor import Anchor, AnchorSettings, FieldAnchor, RowRegularisers, points_clear_of
 from .base import Outcome, Solver, SolveResult
 from .diagnostics import OVERFIT_FACTOR, constrained_parameters, diagnose, inside_expansion
 from .fitted import FittedModel
@@ -306,12 +306,12 @@ def noise_whitening(arcs: Arcs) -> np.ndarray:
     return qv.T / sigmas[:, None]
 
 
-def _anchored(problem, init: np.ndarray, anchor):
-    """``problem`` with the field anchor (points, weight[, quantity]) towards ``init``'s
-    learned field added to its regulariser; ``problem`` itself without ``anchor``."""
+def _anchored(problem, target: np.ndarray, anchor: Anchor | None):
+    """``problem`` with the field ``anchor`` towards ``target``'s learned field added to its
+    regulariser; ``problem`` itself without ``anchor``."""
     if anchor is None:
         return problem
-    pull = FieldAnchor(problem.model, anchor[0], init, anchor[1], *anchor[2:])
+    pull = FieldAnchor(problem.model, anchor.points, target, anchor.weight, anchor.quantity)
     return problem.with_regulariser(RowRegularisers(problem.regulariser, pull))
 
 
@@ -661,20 +661,72 @@ class GravityEstimator:
             return None, None
         return validation_split(arcs.n_arcs, fraction, self.seed)
 
-    def continue_fit(self, previous: FittedModel, arcs: Arcs, **fit_kwargs) -> GravityEstimator:
+    def continue_fit(
+        self,
+        previous: FittedModel,
+        arcs: Arcs,
+        anchor: AnchorSettings | None = None,
+        **fit_kwargs,
+    ) -> GravityEstimator:
         """A continual stage: fit ``arcs`` (all the arcs so far) warm-started from
         ``previous`` (:meth:`check_continuation`), and record the stage in
         ``fitted_.stages`` after ``previous``'s (a model fitted in one go counts as stage 0).
         ``fit_kwargs`` as :meth:`fit` (``init``: a resumed checkpoint's parameters instead of
-        ``previous``'s)."""
+        ``previous``'s). ``anchor``: the learned field is held near ``previous``'s where the
+        new arcs do not reach (:meth:`continuation_anchor`; a resumed fit is held near
+        ``previous`` too); the stage records it."""
         self.check_continuation(previous, arcs)
         init = fit_kwargs.pop("init", None)
         fit_kwargs.pop("warm", None)  # a continued fit is a warm start
-        self.fit(arcs, init=previous.params if init is None else init, warm=True, **fit_kwargs)
+        held = None if anchor is None else self.continuation_anchor(previous, arcs, anchor)
+        self.fit(
+            arcs,
+            init=previous.params if init is None else init,
+            warm=True,
+            anchor=held,
+            **fit_kwargs,
+        )
         stages = previous.stages or [{"stage": 0, **previous.stage_record()}]
         this = {"stage": len(stages), **self.fitted_.stage_record(), "warm_started": True}
+        if held is not None:
+            this["anchor"] = {**held.record(), "clearance": anchor.clearance}
         self.fitted_ = replace(self.fitted_, stages=[*stages, this])
         return self
+
+    def continuation_anchor(
+        self, previous: FittedModel, arcs: Arcs, anchor: AnchorSettings
+    ) -> Anchor:
+        """The field anchor of a stage continuing ``previous`` on ``arcs``: ``arcs`` must
+        begin with the N arcs ``previous`` was fitted to, in order (checked by their digest),
+        the rest being the new ones; the points are the harmonic penalty's collocation points
+        for ``arcs`` farther than ``anchor.clearance`` [canonical] from every sample of the
+        new arcs (or of ``anchor.clear_of``), held near ``previous``'s field."""
+        term = previous.model.learnable
+        if term is None or term.natural_regulariser != "harmonic":
+            raise InputError(
+                "the field anchor needs a network (a learnable term with the harmonic "
+                "penalty); SH have Kaula's rule"
+            )
+        n_old = int(previous.solver.get("n_arcs") or 0)
+        digest = previous.training.get("arcs_sha256")
+        begins = 0 < n_old < arcs.n_arcs and digest == arcs.subset(np.arange(n_old)).digest()
+        if not begins:
+            raise InputError(
+                f"the anchor holds the field where the new arcs do not reach, so the arcs must "
+                f"begin with the {n_old} arcs of the model being continued, in order, then add "
+                f"new ones ({arcs.n_arcs} arcs given, and "
+                + ("their first ones differ)" if n_old < arcs.n_arcs else "none is new)")
+            )
+        clear_of = anchor.clear_of
+        if clear_of is None:
+            clear_of = arcs.states[n_old:][..., :3]
+        points = points_clear_of(self.collocation_points(arcs), clear_of, anchor.clearance)
+        if not len(points):
+            raise InputError(
+                f"no collocation point lies farther than {anchor.clearance:g} (canonical) from "
+                "the new arcs: give the anchor a smaller clearance"
+            )
+        return Anchor(points, anchor.weight, anchor.quantity, target=previous.params)
 
     def check_continuation(self, previous: FittedModel, arcs: Arcs) -> None:
         """Refuse to continue ``previous`` on ``arcs`` unless it is a model of this
@@ -824,7 +876,7 @@ class GravityEstimator:
         reuse: SolveResult | None = None,
         warm: bool | None = None,
         arc_weights: np.ndarray | None = None,
-        anchor: tuple | None = None,
+        anchor: Anchor | tuple | None = None,
     ) -> GravityEstimator:
         """Fit to ``arcs``; ``init`` warm-starts from given parameters (e.g. the previous
         stage's), ``validation`` fixes the held-out arc indices (default: :meth:`split`),
@@ -842,19 +894,24 @@ class GravityEstimator:
         final fit). ``arc_weights`` (n_arcs,): each arc's weight in the cost, training and
         validation alike (:class:`~hamgrav.core.problem.ArcProblem`; e.g. a set of arcs
         deweighted as a whole; recorded in ``fitted_.solver``); not with hyperparameters to
-        choose. ``anchor`` (points (k, 3) canonical, weight[, quantity "acceleration" (the
-        default) or "potential"]): a warm network fit's learned field is held near
-        ``init``'s at the points, with the weight
+        choose. ``anchor`` (an :class:`~hamgrav.fit.anchor.Anchor`, or a tuple (points
+        (k, 3) canonical, weight[, quantity[, target]])): a warm network fit's learned field
+        is held near its target's (default: ``init``'s) at the points, with the weight
         (:class:`~hamgrav.fit.anchor.FieldAnchor`, each ensemble member near its own
         block; in the training objective only, recorded in ``fitted_.solver``)."""
         self.selection_ = []
         arc_weights = _checked_arc_weights(arc_weights, arcs)
-        if anchor is not None and (self.choices() or init is None or resume is not None):
+        anchor = Anchor.of(anchor)
+        if anchor is not None and anchor.target is None and (init is None or resume is not None):
             # a resumed fit's init is its checkpoint, not the model the anchor holds it near
             raise InputError(
                 "the field anchor holds a warm refit near its start: give init (the "
-                "earlier fit's parameters) and fixed hyperparameters (nothing to choose), "
-                "and do not resume"
+                "earlier fit's parameters), and do not resume unless the anchor names its "
+                "target"
+            )
+        if anchor is not None and self.choices():
+            raise InputError(
+                "the field anchor holds a refit with fixed hyperparameters: nothing to choose"
             )
         if self.choices():
             if arc_weights is not None:
@@ -893,6 +950,12 @@ class GravityEstimator:
                 f"initial parameters have {init.size} entries; this model needs "
                 f"{problem.n_params} (is the warm-start model of another structure?)"
             )
+        if anchor is not None and anchor.target is not None:
+            if np.shape(anchor.target) != init.shape:
+                raise InputError(
+                    f"the anchor's target has {np.size(anchor.target)} parameters; this model "
+                    f"needs {problem.n_params}"
+                )
         if validation is not None:
             validation = np.sort(np.asarray(validation, dtype=int))
             train = np.setdiff1d(np.arange(arcs.n_arcs), validation)
@@ -965,7 +1028,11 @@ class GravityEstimator:
             )
         else:
             result = solver.solve(
-                _anchored(problem, init, anchor),
+                _anchored(
+                    problem,
+                    init if anchor is None or anchor.target is None else anchor.target,
+                    anchor,
+                ),
                 init,
                 train=train,
                 validation=seen,
@@ -1080,9 +1147,7 @@ class GravityEstimator:
         if problem.regulariser is not None:
             solver_info |= problem.regulariser.record()
         if anchor is not None:
-            solver_info["anchor"] = {"weight": float(anchor[1]), "points": len(anchor[0])}
-            if anchor[2:] and anchor[2] != "acceleration":
-                solver_info["anchor"]["quantity"] = anchor[2]
+            solver_info["anchor"] = anchor.record()
         if isinstance(solver, LevenbergMarquardt):
             # every LM fit records its Kaula weight (0: none), as model files always have
             solver_info.setdefault("kaula_alpha", 0.0)
@@ -1289,11 +1354,14 @@ class GravityEstimator:
         may add to (see :meth:`fit`). On a ``warm`` start, a member that no step improves
         keeps its starting block, which is a result, not a failure: the ensemble's outcome
         comes from the other members. ``anchor``: see :meth:`fit` (each member near its own
-        block of ``init``)."""
+        block of the anchor's target, or of ``init``)."""
         start = time.perf_counter()
         term = problem.model.learnable
         member_problem = self._problem(problem.model.member(), problem.arcs, problem.arc_weights)
         blocks = term.split_members(init)
+        held = blocks
+        if anchor is not None and anchor.target is not None:
+            held = term.split_members(np.asarray(anchor.target, dtype=float)[: term.n_params])
         first = 0 if resume is None else int(resume.get("member", 0))
         results: list[SolveResult | None] = [None] * term.members
         for k in range(first, term.members):
@@ -1307,7 +1375,7 @@ class GravityEstimator:
                 callback(it, {**record, "member": k})
 
             results[k] = solver.solve(
-                _anchored(member_problem, blocks[k], anchor),
+                _anchored(member_problem, held[k], anchor),
                 blocks[k],
                 train=train,
                 validation=validation,

@@ -23,6 +23,7 @@ import numpy as np
 from ..core.arcs import Arcs
 from ..errors import HamgravError, InputError
 from ..files import check_output
+from ..fit.anchor import AnchorSettings
 from ..fit.estimator import GravityEstimator
 from ..fit.fitted import FittedModel
 from . import arcs as arcs_io
@@ -100,6 +101,8 @@ class FitRun:
             resumed).
         arc_weights: each arc's weight in the cost (None: all 1; see
             :meth:`GravityEstimator.fit`).
+        anchor: a continued fit's field anchor
+            (:meth:`GravityEstimator.continue_fit`; None: none).
     """
 
     estimator: GravityEstimator
@@ -111,6 +114,7 @@ class FitRun:
     init: np.ndarray | None = None
     state: dict | None = None
     arc_weights: np.ndarray | None = None
+    anchor: AnchorSettings | None = None
 
     def fit(self, callback=None) -> GravityEstimator:
         """Fit (or continue ``previous``; resume the checkpoint when one was read), saving
@@ -126,7 +130,7 @@ class FitRun:
             "arc_weights": self.arc_weights,
         }
         if self.previous is not None:
-            return self.estimator.continue_fit(self.previous, self.arcs, **how)
+            return self.estimator.continue_fit(self.previous, self.arcs, anchor=self.anchor, **how)
         return self.estimator.fit(self.arcs, **how)
 
     def write(self, arcs_file: str | os.PathLike | None = None) -> FittedModel:
@@ -155,14 +159,16 @@ def prepare_fit(
     checkpoint: Path | None = None,
     init_name: str | None = None,
     arc_weights: np.ndarray | None = None,
+    anchor: AnchorSettings | None = None,
 ) -> FitRun:
     """Everything ``hamgrav fit`` checks before a fit starts, as a :class:`FitRun`: the
     checkpoint beside ``output`` (:func:`checkpoint_for_fit`; pass ``checkpoint`` when it was
     checked already), the model to continue ``init`` (a model file or a
     :class:`FittedModel`: :meth:`GravityEstimator.check_continuation`; ``init_name`` names
     it in errors), the fit's identity (its arcs, body, settings, solver: the warm solver of
-    a continued fit, and its starting model, and the ``arc_weights`` when given) and, with
-    ``resume``, the checkpoint read and refused if another fit wrote it."""
+    a continued fit, and its starting model, the ``arc_weights`` and the ``anchor`` of a
+    continued fit when given) and, with ``resume``, the checkpoint read and refused if
+    another fit wrote it."""
     output = Path(output)
     ckpt = checkpoint if checkpoint is not None else checkpoint_for_fit(output, resume)
     previous = init
@@ -174,12 +180,31 @@ def prepare_fit(
     identity = estimator.checkpoint_identity(arcs, solver, init=previous)
     if arc_weights is not None:
         arc_weights = np.asarray(arc_weights, dtype=float)
-        digest = hashlib.sha256(np.ascontiguousarray(arc_weights).tobytes()).hexdigest()
-        identity["arc_weights_sha256"] = digest
-    run = FitRun(estimator, arcs, output, ckpt, previous, identity, arc_weights=arc_weights)
+        identity["arc_weights_sha256"] = _sha256(arc_weights)
+    if anchor is not None:
+        if previous is None:
+            raise InputError(
+                "the field anchor holds a continued fit near the model it continues: give "
+                "the model to continue (--init)"
+            )
+        # the points follow from the arcs (in the identity already) and the clearance
+        identity["anchor"] = {
+            "weight": anchor.weight,
+            "clearance": anchor.clearance,
+            "quantity": anchor.quantity,
+            **({} if anchor.clear_of is None else {"clear_of_sha256": _sha256(anchor.clear_of)}),
+        }
+    run = FitRun(
+        estimator, arcs, output, ckpt, previous, identity, arc_weights=arc_weights, anchor=anchor
+    )
     if resume:
         run.init, run.state = models.load_checkpoint(ckpt, expect=identity)
     return run
+
+
+def _sha256(values: np.ndarray) -> str:
+    """SHA-256 (hex) of an array's float64 bytes."""
+    return hashlib.sha256(np.ascontiguousarray(values, dtype=np.float64).tobytes()).hexdigest()
 
 
 def fit_to_file(
@@ -191,13 +216,15 @@ def fit_to_file(
     resume: bool = False,
     callback=None,
     arc_weights: np.ndarray | None = None,
+    anchor: AnchorSettings | None = None,
 ) -> FittedModel:
     """Fit ``estimator`` to ``arcs`` (an arcs file, recorded in the model, or
     :class:`Arcs`) and write the model file ``output``, as ``hamgrav fit`` does: a checkpoint
     beside it while it runs (kept if the fit is stopped), ``resume`` to continue from it,
     ``init`` (a model file or :class:`FittedModel`) to continue that model as a continual
-    stage; ``arc_weights`` each arc's weight in the cost (:meth:`GravityEstimator.fit`).
-    Returns the model written."""
+    stage; ``arc_weights`` each arc's weight in the cost (:meth:`GravityEstimator.fit`);
+    ``anchor`` holds a continued model's field where the new arcs do not reach
+    (:meth:`GravityEstimator.continue_fit`). Returns the model written."""
     # (output may be the model of init: it is continued in place)
     check_output(Path(output), "output", {} if isinstance(arcs, Arcs) else {"arcs": arcs})
     ckpt = checkpoint_for_fit(output, resume)
@@ -212,5 +239,6 @@ def fit_to_file(
         resume=resume,
         checkpoint=ckpt,
         arc_weights=arc_weights,
+        anchor=anchor,
     )
     return run.run(arcs_file, callback)
