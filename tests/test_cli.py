@@ -595,6 +595,7 @@ def test_fit_init_with_an_anchor_holds_the_field_where_the_new_arcs_do_not_reach
     from hamgrav.core.model import evaluate_field
     from hamgrav.fit.anchor import AnchorSettings, points_clear_of
     from hamgrav.fit.estimator import GravityEstimator
+    from hamgrav.fit.lm import LevenbergMarquardt
     from hamgrav.io.arcs import save_arcs
     from hamgrav.io.fit_run import prepare_fit
     from hamgrav.io.models import load_model
@@ -634,7 +635,9 @@ def test_fit_init_with_an_anchor_holds_the_field_where_the_new_arcs_do_not_reach
     # the anchor is part of the fit's identity: a checkpoint of another anchor is not resumed
     prepared = [
         prepare_fit(
-            GravityEstimator("network", hidden=(4,), members=3, body=body),
+            GravityEstimator(
+                "network", hidden=(4,), members=3, body=body, solver=LevenbergMarquardt()
+            ),
             small_arcs,
             tmp_path / "x.h5",
             init=start,
@@ -664,6 +667,55 @@ def test_fit_anchor_options_are_checked_first(small_arcs, tmp_path, extra, messa
     assert result.exit_code == 2 and message in result.output, result.output
 
 
+def test_fit_anchor_refuses_what_it_cannot_hold_before_fitting(small_arcs, tmp_path):
+    from hamgrav.io.arcs import save_arcs
+
+    first = save_arcs(small_arcs.subset(range(5)), tmp_path / "first.h5")
+    everything = save_arcs(small_arcs, tmp_path / "all.h5")
+    net = ["--model", "network-best", "--hidden", "4"]
+    adam = ["--model", "network", "--hidden", "4", "--steps", "3"]
+    for name, model in (("net", net), ("adam", adam)):
+        made = runner.invoke(app, ["fit", str(first), *model, "-o", str(tmp_path / name)])
+        assert made.exit_code == 0, made.output
+    cases = {
+        "fit with LM (--model network-best, or --solver lm)": ("adam", adam),
+        "give the harmonic penalty's weight (--harmonic W), not a choice": (
+            "net",
+            [*net, "--harmonic", "cv"],
+        ),
+        "smaller clearance (--anchor-clearance-m)": ("net", [*net, "--anchor-clearance-m", "1e7"]),
+    }
+    for k, (message, (init, extra)) in enumerate(cases.items()):
+        out = tmp_path / f"o{k}.h5"
+        go = ["fit", str(everything), "--init", str(tmp_path / init), "--anchor", "1", "-o"]
+        result = runner.invoke(app, [*go, str(out), *extra])
+        assert result.exit_code == 2 and message in result.output, result.output
+        # refused before the fit: no progress bar, no checkpoint, no model
+        assert "fitting" not in result.output and not out.exists()
+
+
+def test_fit_anchor_on_the_potential_with_the_default_clearance(
+    small_arcs, synthetic_truth, tmp_path
+):
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.models import load_model
+
+    first = save_arcs(small_arcs.subset(range(5)), tmp_path / "first.h5")
+    everything = save_arcs(small_arcs, tmp_path / "all.h5")
+    stage1, stage2 = tmp_path / "s1.h5", tmp_path / "s2.h5"
+    net = ["--model", "network-best", "--hidden", "4"]
+    assert runner.invoke(app, ["fit", str(first), *net, "-o", str(stage1)]).exit_code == 0
+    args = ["fit", str(everything), *net, "--init", str(stage1), "--anchor", "0.5"]
+    result = runner.invoke(app, [*args, "--anchor-on", "potential", "-o", str(stage2)])
+    assert result.exit_code == 0, result.output
+    fitted = load_model(stage2)
+    anchor = fitted.stages[-1]["anchor"]
+    assert anchor["quantity"] == "potential" and anchor["weight"] == 0.5
+    radius = synthetic_truth.body.brillouin_radius
+    assert anchor["clearance"] == pytest.approx(0.1 * radius, rel=1e-12)
+    assert fitted.solver["anchor"]["quantity"] == "potential"
+
+
 def test_fit_anchor_needs_arcs_that_extend_the_models_own(small_arcs, tmp_path):
     from hamgrav.io.arcs import save_arcs
 
@@ -678,5 +730,5 @@ def test_fit_anchor_needs_arcs_that_extend_the_models_own(small_arcs, tmp_path):
         if model[1] == "sh:2":
             assert other.exit_code == 2 and "needs a network" in other.output, other.output
             continue
-        assert same.exit_code == 2 and "5 arcs given, and none is new" in same.output
-        assert other.exit_code == 2 and "their first ones differ" in other.output
+        assert same.exit_code == 2 and "5 arcs given, none of them new" in same.output
+        assert other.exit_code == 2 and "their first 5 are not the model's" in other.output

@@ -964,9 +964,10 @@ AnchorClearanceOption = Annotated[
 AnchorOnOption = Annotated[
     str | None,
     typer.Option(
-        help="With --anchor: the quantity held, 'acceleration' (rows weighted by (r/R_B)^4; "
-        "the default) or 'potential' (unweighted, as the relative field error counts a "
-        "change near the surface).",
+        help="With --anchor: the quantity held, 'acceleration' (rows weighted by (r/R_w)^4, "
+        "R_w the network's envelope radius, the synchronous radius; the default) or "
+        "'potential' (unweighted rows, as the relative field error counts a change near the "
+        "surface; the same W holds it otherwise than the acceleration).",
     ),
 ]
 StepsOption = Annotated[

@@ -186,3 +186,46 @@ def test_an_anchor_needs_a_previous_stage_a_network_and_lm(small_arcs, synthetic
         est.fit(small_arcs, anchor=(np.ones((2, 3)), 0.1))
     with pytest.raises(InputError, match="do not resume"):
         est.fit(small_arcs, init=np.zeros(3), resume={}, anchor=(np.ones((2, 3)), 0.1))
+
+
+def test_a_continued_fit_is_held_near_the_model_it_continues_not_near_its_start(
+    small_arcs, synthetic_truth
+):
+    """``continue_fit(previous, arcs, anchor=...)`` holds the field near ``previous``'s even
+    when the fit starts elsewhere (a resumed checkpoint's parameters, as ``init``): the
+    anchored stage ends far nearer ``previous``'s field than its start was, and than the same
+    stage without the anchor; the stage records the anchor."""
+    est = _network(synthetic_truth)
+    est.fit(small_arcs.subset(range(5)))
+    previous = est.fitted_
+    moved = previous.params + 0.05 * np.random.default_rng(1).normal(size=previous.params.shape)
+    settings = AnchorSettings(1e3, clearance=0.3)
+    fits = {}
+    for name, anchor in (("held", settings), ("free", None)):
+        # no hold-out: the returned iterate is the last, not the one the held-out arcs like
+        again = _network(synthetic_truth)
+        again.validation_fraction = 0.0
+        again.solver = LevenbergMarquardt(max_iter=10, rtol=0.0)
+        again.continue_fit(previous, small_arcs, anchor=anchor, init=moved)
+        fits[name] = again
+    held = fits["held"].continuation_anchor(previous, small_arcs, settings)
+    assert np.array_equal(held.target, previous.params)
+    assert fits["held"].fitted_.stages[-1]["anchor"] == {
+        "weight": 1e3,
+        "points": len(held.points),
+        "clearance": 0.3,
+    }
+    assert "anchor" not in fits["free"].fitted_.stages[-1]
+    term = previous.model.learnable
+    member = previous.model.member()
+
+    def field(p, k):
+        return evaluate_field(member, term.split_members(p[: term.n_params])[k], held.points)[1]
+
+    for k in range(term.members):
+        start = field(previous.params, k)
+        moved_by, held_by, free_by = (
+            np.sqrt(np.mean((field(p, k) - start) ** 2))
+            for p in (moved, fits["held"].fitted_.params, fits["free"].fitted_.params)
+        )
+        assert held_by < 0.1 * moved_by and held_by < 0.1 * free_by

@@ -126,7 +126,7 @@ def deep_bin_errors(fitted: dict, truth: Truth, altitude_m: float, bins_rb, seed
     points}). Errors are rounded to 4 decimals, then to 4 significant digits."""
     body = truth.body
     surface = evaluation_sets(body, (), (altitude_m,), seed=seed)[f"h{altitude_m:g}m"]
-    inside_rb = surface[np.linalg.norm(surface, axis=1) < body.brillouin_radius]
+    inside_rb = deep_set(body, altitude_m, seed)
     bins = radial_bins(surface, body.brillouin_radius, bins_rb)
     filled = {k: v for k, v in bins.items() if len(v)}
     out: dict = {

@@ -292,7 +292,7 @@ class NeuralPotential(GravityTerm):
 
     Fields: ``hidden`` layer sizes; ``scale`` s, the output's scale [canonical potential,
     GM / synchronous radius]; ``envelope_radius`` R_w [canonical length, synchronous radii]
-    (hamgrav uses the Brillouin radius); ``members`` K.
+    (the estimator's networks use 1, the synchronous radius); ``members`` K.
     """
 
     hidden: tuple[int, ...] = (24, 24)

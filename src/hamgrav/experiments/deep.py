@@ -352,6 +352,11 @@ class DeepExperimentConfig(DeepCampaignConfig):
                 f"{label('descent_anchor_on')} must be one of {', '.join(ANCHOR_QUANTITIES)}, "
                 f"got {self.descent_anchor_on!r}"
             )
+        if self.descent_anchor_on != "acceleration" and not self.descent_anchor:
+            raise InputError(
+                f"{label('descent_anchor_on')} sets the descent refit's anchor: give "
+                f"{label('descent_anchor')} above 0 too"
+            )
         if self.descent_anchor and not self.descents:
             raise InputError(
                 f"{label('descent_anchor')} holds the descent refit near the stage-6 fit: give "

@@ -77,8 +77,9 @@ class AnchorSettings:
 class Anchor:
     """A field anchor as a fit takes it (:meth:`hamgrav.fit.estimator.GravityEstimator.fit`):
     ``points`` (k, 3) [canonical], ``weight`` w, ``quantity`` (see the module) and
-    ``target``, the learnable parameters whose field is held (None: the fit's ``init``; an
-    ensemble's members each held near their own block)."""
+    ``target``, parameters laid out as the fit's ``init`` (the learnable ones first) whose
+    learned field is held (None: ``init`` itself; an ensemble's members each held near
+    their own block)."""
 
     points: np.ndarray
     weight: float

@@ -704,27 +704,35 @@ class GravityEstimator:
         term = previous.model.learnable
         if term is None or term.natural_regulariser != "harmonic":
             raise InputError(
-                "the field anchor needs a network (a learnable term with the harmonic "
-                "penalty); SH have Kaula's rule"
+                "the field anchor needs a network fitted by LM (--model network-best); SH "
+                "have Kaula's rule"
             )
         n_old = int(previous.solver.get("n_arcs") or 0)
         digest = previous.training.get("arcs_sha256")
-        begins = 0 < n_old < arcs.n_arcs and digest == arcs.subset(np.arange(n_old)).digest()
-        if not begins:
+        need = (
+            f"the anchor holds the field where the new arcs do not reach, so the arcs must "
+            f"begin with the {n_old} arcs of the model being continued, in order, then add new "
+            f"ones; {arcs.n_arcs} arcs given"
+        )
+        if not digest:
             raise InputError(
-                f"the anchor holds the field where the new arcs do not reach, so the arcs must "
-                f"begin with the {n_old} arcs of the model being continued, in order, then add "
-                f"new ones ({arcs.n_arcs} arcs given, and "
-                + ("their first ones differ)" if n_old < arcs.n_arcs else "none is new)")
+                "the model to continue records no digest of its arcs (written by an older "
+                "hamgrav), so the new arcs cannot be told: fit it again, then continue it"
             )
+        if arcs.n_arcs <= n_old:
+            raise InputError(f"{need}, none of them new")
+        if digest != arcs.subset(np.arange(n_old)).digest():
+            raise InputError(f"{need}, and their first {n_old} are not the model's")
         clear_of = anchor.clear_of
         if clear_of is None:
             clear_of = arcs.states[n_old:][..., :3]
         points = points_clear_of(self.collocation_points(arcs), clear_of, anchor.clearance)
         if not len(points):
+            body = self.body_of(arcs)
             raise InputError(
-                f"no collocation point lies farther than {anchor.clearance:g} (canonical) from "
-                "the new arcs: give the anchor a smaller clearance"
+                f"no collocation point lies farther than {anchor.clearance:g} (canonical; "
+                f"{anchor.clearance / body.brillouin_radius:.3g} R_B) from the new arcs: give "
+                "the anchor a smaller clearance (--anchor-clearance-m)"
             )
         return Anchor(points, anchor.weight, anchor.quantity, target=previous.params)
 
@@ -902,8 +910,8 @@ class GravityEstimator:
         self.selection_ = []
         arc_weights = _checked_arc_weights(arc_weights, arcs)
         anchor = Anchor.of(anchor)
-        if anchor is not None and anchor.target is None and (init is None or resume is not None):
-            # a resumed fit's init is its checkpoint, not the model the anchor holds it near
+        # a resumed fit's init is its checkpoint, not the model the anchor holds it near
+        if anchor is not None and (init is None or (anchor.target is None and resume is not None)):
             raise InputError(
                 "the field anchor holds a warm refit near its start: give init (the "
                 "earlier fit's parameters), and do not resume unless the anchor names its "
@@ -911,7 +919,8 @@ class GravityEstimator:
             )
         if anchor is not None and self.choices():
             raise InputError(
-                "the field anchor holds a refit with fixed hyperparameters: nothing to choose"
+                "the field anchor holds a refit with fixed hyperparameters: give the harmonic "
+                "penalty's weight (--harmonic W), not a choice (cv)"
             )
         if self.choices():
             if arc_weights is not None:
@@ -981,7 +990,10 @@ class GravityEstimator:
                 )
             if not isinstance(solver, LevenbergMarquardt):
                 # Adam's gradient leaves the regulariser out: the anchor would not act
-                raise InputError("the field anchor is a term of LM's objective: fit with LM")
+                raise InputError(
+                    "the field anchor is a term of LM's objective: fit with LM "
+                    "(--model network-best, or --solver lm)"
+                )
         # the arcs the solver may select its returned iterate on (SH: none, only checked)
         seen = validation if self.solver_sees_validation else None
         kaula_scores = None

@@ -26,6 +26,7 @@ from ..files import check_output
 from ..fit.anchor import AnchorSettings
 from ..fit.estimator import GravityEstimator
 from ..fit.fitted import FittedModel
+from ..fit.lm import LevenbergMarquardt
 from . import arcs as arcs_io
 from . import models  # looked up at each call (tests replace save_checkpoint)
 
@@ -129,6 +130,8 @@ class FitRun:
             "resume": self.state,
             "arc_weights": self.arc_weights,
         }
+        if self.anchor is not None and self.previous is None:
+            raise InputError("the field anchor holds a continued fit: give the model to continue")
         if self.previous is not None:
             return self.estimator.continue_fit(self.previous, self.arcs, anchor=self.anchor, **how)
         return self.estimator.fit(self.arcs, **how)
@@ -187,6 +190,18 @@ def prepare_fit(
                 "the field anchor holds a continued fit near the model it continues: give "
                 "the model to continue (--init)"
             )
+        # refused here, before a cluster or the progress starts: what the fit would refuse
+        if not isinstance(solver, LevenbergMarquardt):
+            raise InputError(
+                "the field anchor is a term of LM's objective: fit with LM "
+                "(--model network-best, or --solver lm)"
+            )
+        if estimator.choices():
+            raise InputError(
+                "the field anchor holds a refit with fixed hyperparameters: give the harmonic "
+                "penalty's weight (--harmonic W), not a choice (cv)"
+            )
+        estimator.continuation_anchor(previous, arcs, anchor)
         # the points follow from the arcs (in the identity already) and the clearance
         identity["anchor"] = {
             "weight": anchor.weight,

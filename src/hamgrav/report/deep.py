@@ -413,10 +413,11 @@ def _descents_section(report: dict, net: str) -> list[str]:
             f"{1 - share:g}, each measured by what no correction leaves on it"
         )
     anchor = cfg.get("descent_anchor", 0.0)
+    on = cfg.get("descent_anchor_on", "acceleration")
     if anchor:
         refit += (
             f"; the network's refit holds its learned "
-            f"{cfg.get('descent_anchor_on', 'acceleration')} near the stage-6 fit's, with "
+            f"{'field' if on == 'acceleration' else on} near the stage-6 fit's, with "
             f"the weight {anchor:g}, at the collocation points farther than "
             f"{cfg['descent_anchor_clearance_rb']:g} R_B from every descent sample "
             "(--descent-anchor)"
@@ -522,10 +523,11 @@ def _descents_section(report: dict, net: str) -> list[str]:
             "",
         ]
         for seed, m, a in agreement:
+            f = {k: "n/a" if v is None else f"{v:.3g}" for k, v in a.items()}
             lines.append(
-                f"- seed {seed}, {m}: change {a['deep_change']:.3g}, spread "
-                f"{a['deep_spread_before']:.3g} -> {a['deep_spread_after']:.3g}; error "
-                f"{a['deep_before']:.3g} -> {a['deep_after']:.3g}"
+                f"- seed {seed}, {m}: change {f['deep_change']}, spread "
+                f"{f['deep_spread_before']} -> {f['deep_spread_after']}; error "
+                f"{f['deep_before']} -> {f['deep_after']}"
             )
     with_descents = [r for r in reps if "descents" in r]
     restarts = {
