@@ -44,6 +44,7 @@ __all__ = [
     "FieldAnchor",
     "AnchorSettings",
     "RowRegularisers",
+    "anchor_points",
     "points_clear_of",
 ]
 
@@ -100,6 +101,23 @@ class Anchor:
         if self.quantity != "acceleration":
             out["quantity"] = self.quantity
         return out
+
+
+def anchor_points(
+    collocation: np.ndarray, new_samples: np.ndarray, settings: AnchorSettings, brillouin_radius
+) -> np.ndarray:
+    """The anchor's points under ``settings``: the ``collocation`` points (k, 3) farther than
+    ``settings.clearance`` from every one of ``new_samples`` (..., 3), or of
+    ``settings.clear_of`` when given (canonical); refused when none is left."""
+    clear_of = new_samples if settings.clear_of is None else settings.clear_of
+    points = points_clear_of(collocation, clear_of, settings.clearance)
+    if not len(points):
+        raise InputError(
+            f"no collocation point lies farther than {settings.clearance:g} (canonical; "
+            f"{settings.clearance / brillouin_radius:.3g} R_B) from the new arcs: give the "
+            "anchor a smaller clearance (--anchor-clearance-m)"
+        )
+    return points
 
 
 def points_clear_of(points: np.ndarray, samples: np.ndarray, clearance: float) -> np.ndarray:

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.arcs import Arcs
 from ..errors import InputError, PropagationError
-from .anchor import Anchor, AnchorSettings, points_clear_of
+from .anchor import Anchor, AnchorSettings, anchor_points
 from .base import Solver, SolveResult
 from .estimator import GravityEstimator, validation_split
 
@@ -173,17 +173,12 @@ class ContinualFit:
                     "the field anchor holds a stage near the previous one: fit a first stage "
                     "(with warm_start on) before anchoring one"
                 )
-            clear_of = anchor.clear_of
-            if clear_of is None:
-                clear_of = self.arcs.states[new][..., :3]
-            points = points_clear_of(
-                estimator.collocation_points(subset), clear_of, anchor.clearance
+            points = anchor_points(
+                estimator.collocation_points(subset),
+                self.arcs.states[new][..., :3],
+                anchor,
+                estimator.body_of(subset).brillouin_radius,
             )
-            if not len(points):
-                raise InputError(
-                    f"no collocation point lies farther than {anchor.clearance:g} (canonical) "
-                    "from the new arcs: give the anchor a smaller clearance"
-                )
             anchored = Anchor(points, anchor.weight, anchor.quantity)
         # the previous stage's training arcs keep their indices (arcs are appended), so its
         # normal equations at theta are added to rather than formed again
@@ -220,12 +215,7 @@ class ContinualFit:
             estimator.diagnostics_.get("checked_on"),
             None
             if anchored is None or not warm
-            else {
-                "weight": anchor.weight,
-                "clearance": anchor.clearance,
-                "points": len(anchored.points),
-                **({"quantity": anchor.quantity} if anchor.quantity != "acceleration" else {}),
-            },
+            else {**anchored.record(), "clearance": anchor.clearance},
         )
         if self.records:
             # only the newest stage's normal equations are added to: drop the older ones

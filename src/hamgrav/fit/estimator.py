@@ -42,7 +42,7 @@ from ..core.terms import GravityTerm, MasconTerm, NeuralPotential, PointMass, Sp
 from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
-from .anchor import Anchor, AnchorSettings, FieldAnchor, RowRegularisers, points_clear_of
+from .anchor import Anchor, AnchorSettings, FieldAnchor, RowRegularisers, anchor_points
 from .base import Outcome, Solver, SolveResult
 from .diagnostics import OVERFIT_FACTOR, constrained_parameters, diagnose, inside_expansion
 from .fitted import FittedModel
@@ -693,6 +693,26 @@ class GravityEstimator:
         self.fitted_ = replace(self.fitted_, stages=[*stages, this])
         return self
 
+    def check_anchor_allowed(self, solver: Solver | None, term: GravityTerm | None = None):
+        """Refuse a field anchor this fit cannot carry: hyperparameters to choose, a
+        ``solver`` other than LM (Adam's gradient leaves regularisers out), a learnable
+        ``term`` that is not a network (when given)."""
+        if self.choices():
+            raise InputError(
+                "the field anchor holds a refit with fixed hyperparameters: give the harmonic "
+                "penalty's weight (--harmonic W), not a choice (cv)"
+            )
+        if term is not None and term.natural_regulariser != "harmonic":
+            raise InputError(
+                "the field anchor needs a network (a learnable term with the harmonic "
+                "penalty); SH have Kaula's rule"
+            )
+        if solver is not None and not isinstance(solver, LevenbergMarquardt):
+            raise InputError(
+                "the field anchor is a term of LM's objective: fit with LM "
+                "(--model network-best, or --solver lm)"
+            )
+
     def continuation_anchor(
         self, previous: FittedModel, arcs: Arcs, anchor: AnchorSettings
     ) -> Anchor:
@@ -723,17 +743,12 @@ class GravityEstimator:
             raise InputError(f"{need}, none of them new")
         if digest != arcs.subset(np.arange(n_old)).digest():
             raise InputError(f"{need}, and their first {n_old} are not the model's")
-        clear_of = anchor.clear_of
-        if clear_of is None:
-            clear_of = arcs.states[n_old:][..., :3]
-        points = points_clear_of(self.collocation_points(arcs), clear_of, anchor.clearance)
-        if not len(points):
-            body = self.body_of(arcs)
-            raise InputError(
-                f"no collocation point lies farther than {anchor.clearance:g} (canonical; "
-                f"{anchor.clearance / body.brillouin_radius:.3g} R_B) from the new arcs: give "
-                "the anchor a smaller clearance (--anchor-clearance-m)"
-            )
+        points = anchor_points(
+            self.collocation_points(arcs),
+            arcs.states[n_old:][..., :3],
+            anchor,
+            self.body_of(arcs).brillouin_radius,
+        )
         return Anchor(points, anchor.weight, anchor.quantity, target=previous.params)
 
     def check_continuation(self, previous: FittedModel, arcs: Arcs) -> None:
@@ -917,11 +932,8 @@ class GravityEstimator:
                 "earlier fit's parameters), and do not resume unless the anchor names its "
                 "target"
             )
-        if anchor is not None and self.choices():
-            raise InputError(
-                "the field anchor holds a refit with fixed hyperparameters: give the harmonic "
-                "penalty's weight (--harmonic W), not a choice (cv)"
-            )
+        if anchor is not None:
+            self.check_anchor_allowed(None)  # the choices, before any work
         if self.choices():
             if arc_weights is not None:
                 raise InputError(
@@ -982,18 +994,7 @@ class GravityEstimator:
         _warn_if_underdetermined(problem, ensemble, arcs, train)
         solver = solver or (self.warm_solver if warm else None) or self.make_solver()
         if anchor is not None:
-            term = model.learnable
-            if term is None or term.natural_regulariser != "harmonic":
-                raise InputError(
-                    "the field anchor needs a network (a learnable term with the harmonic "
-                    "penalty); SH have Kaula's rule"
-                )
-            if not isinstance(solver, LevenbergMarquardt):
-                # Adam's gradient leaves the regulariser out: the anchor would not act
-                raise InputError(
-                    "the field anchor is a term of LM's objective: fit with LM "
-                    "(--model network-best, or --solver lm)"
-                )
+            self.check_anchor_allowed(solver, model.learnable)
         # the arcs the solver may select its returned iterate on (SH: none, only checked)
         seen = validation if self.solver_sees_validation else None
         kaula_scores = None

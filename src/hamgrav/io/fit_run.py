@@ -26,7 +26,6 @@ from ..files import check_output
 from ..fit.anchor import AnchorSettings
 from ..fit.estimator import GravityEstimator
 from ..fit.fitted import FittedModel
-from ..fit.lm import LevenbergMarquardt
 from . import arcs as arcs_io
 from . import models  # looked up at each call (tests replace save_checkpoint)
 
@@ -191,16 +190,7 @@ def prepare_fit(
                 "the model to continue (--init)"
             )
         # refused here, before a cluster or the progress starts: what the fit would refuse
-        if not isinstance(solver, LevenbergMarquardt):
-            raise InputError(
-                "the field anchor is a term of LM's objective: fit with LM "
-                "(--model network-best, or --solver lm)"
-            )
-        if estimator.choices():
-            raise InputError(
-                "the field anchor holds a refit with fixed hyperparameters: give the harmonic "
-                "penalty's weight (--harmonic W), not a choice (cv)"
-            )
+        estimator.check_anchor_allowed(solver)
         estimator.continuation_anchor(previous, arcs, anchor)
         # the points follow from the arcs (in the identity already) and the clearance
         identity["anchor"] = {
