@@ -92,6 +92,39 @@ def test_network_potential_decays_as_r_cubed():
     assert np.allclose(v2 / v1, 1 / 8, rtol=1e-3)
 
 
+def test_softened_envelope_matches_numpy_and_caps_the_amplification():
+    from hamgrav.core.terms import term_from_description
+
+    soft = NeuralPotential((5, 4), scale=0.1, envelope_radius=1.2, softening=0.4)
+    theta = np.random.default_rng(7).normal(size=soft.n_params)
+    pts = np.array([[1.1, -0.4, 0.3], [0.02, 0.01, -0.03], [-2.0, 0.1, 0.4]])
+    v, a = evaluate_field(Model((PointMass(),), soft), theta, pts)
+    plain = NeuralPotential((5, 4), scale=0.1, envelope_radius=1.2)
+    v0, _ = evaluate_field(Model((PointMass(),), plain), theta, pts)
+    r2 = np.sum(pts * pts, axis=1)
+    # the same network (v: the learned term's potential): only the envelope differs,
+    # (R_w / r)^3 against R_w^3 / rho^3
+    nn = v0 * r2**1.5 / (0.1 * 1.2**3)
+    assert np.allclose(v, 0.1 * 1.2**3 * nn / (r2 + 0.16) ** 1.5, rtol=1e-12)
+    # the acceleration is the gradient of the softened potential (central differences)
+    h = 1e-6
+    for k in range(3):
+        step = np.zeros(3)
+        step[k] = h
+        vp, _ = evaluate_field(Model((PointMass(),), soft), theta, pts + step)
+        vm, _ = evaluate_field(Model((PointMass(),), soft), theta, pts - step)
+        assert np.allclose(a[:, k], (vp - vm) / (2 * h), rtol=1e-6, atol=1e-9)
+    # near the centre the envelope stays below (R_w / r_c)^3; far out it is (R_w / r)^3
+    assert soft.envelope_distance(pts[1:2])[0] * 1.2 == pytest.approx(np.sqrt(r2[1] + 0.16))
+    assert np.allclose(soft.envelope_distance(1e4 * pts), plain.envelope_distance(1e4 * pts))
+    assert soft.key() != plain.key() and "envelope_softening" not in plain.describe()
+    assert term_from_description(soft.describe()) == soft
+    assert soft.member().softening == 0.4
+    assert soft.export_json(theta)["envelope_softening"] == 0.4
+    with pytest.raises(ValueError, match="softening"):
+        NeuralPotential((4,), softening=-0.1)
+
+
 def test_legendre_normalisation_matches_pyshtools():
     import pyshtools
 

@@ -44,6 +44,7 @@ BEFORE_THE_OPTION = {
     "descent_anchor_clearance_rb": 0.1,
     "descent_anchor_on": "acceleration",
     "network_start": "random",
+    "envelope_softening_rb": 0.0,
 }
 
 

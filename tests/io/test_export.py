@@ -44,8 +44,8 @@ def prior():
     return MasconTerm(MasconSet(pos, np.full(12, 1 / 12)), "shape prior")
 
 
-def network_fitted(known, members=1, seed=2):
-    term = NeuralPotential((10, 8), members=members)
+def network_fitted(known, members=1, seed=2, softening=0.0):
+    term = NeuralPotential((10, 8), members=members, softening=softening)
     params = term.initial_params(seed) + 0.05 * np.random.default_rng(seed).normal(
         size=term.n_params
     )
@@ -188,10 +188,10 @@ def readme_evaluator():
     return namespace["hamgrav_network_potential"]
 
 
-@pytest.mark.parametrize("with_prior", [False, True])
-def test_json_network_evaluated_by_the_readme_function(prior, with_prior, tmp_path):
+@pytest.mark.parametrize("with_prior, softening", [(False, 0.0), (True, 0.0), (False, 0.3)])
+def test_json_network_evaluated_by_the_readme_function(prior, with_prior, softening, tmp_path):
     known = (prior,) if with_prior else (PointMass(),)
-    fitted = network_fitted(known, members=2 if with_prior else 1)
+    fitted = network_fitted(known, members=2 if with_prior else 1, softening=softening)
     path = write_network_json(fitted, tmp_path / "net.json")
     evaluate = readme_evaluator()
     pts = np.concatenate([shell_points(k, 30, seed=i) for i, k in enumerate((0.5, 0.8, 1.5))])

@@ -282,23 +282,29 @@ class MasconTerm(GravityTerm):
 @register_term("network")
 @dataclass(frozen=True)
 class NeuralPotential(GravityTerm):
-    """N(q) = s (R_w / r)^3 NN(x, y, z): tanh hidden layers, one linear output.
+    """N(q) = s (R_w / rho)^3 NN(x, y, z), rho = sqrt(r^2 + r_c^2): tanh hidden layers, one
+    linear output.
 
     The envelope imposes the 1/r^3 decay of the slowest-fading (quadrupole) part of a
     perturbing potential and removes the additive-constant degeneracy of the last bias.
+    The softening r_c (0 by default: (R_w / r)^3) caps how much the envelope amplifies the
+    network near the centre, (R_w / r_c)^3 at most, so that a change of the network that the
+    exterior barely sees is not multiplied by (R_w / r)^3 at a neck well inside R_B.
     With ``members`` = K > 1 the term is an ensemble: NN is the mean of K networks of the same
     shape, each with its own parameters (member-major: member 0's block, then member 1's...).
     Initialisation (seeded): Glorot-uniform weights, zero biases; member k uses seed + k.
 
     Fields: ``hidden`` layer sizes; ``scale`` s, the output's scale [canonical potential,
     GM / synchronous radius]; ``envelope_radius`` R_w [canonical length, synchronous radii]
-    (the estimator's networks use 1, the synchronous radius); ``members`` K.
+    (the estimator's networks use 1, the synchronous radius); ``members`` K; ``softening``
+    r_c [canonical length, synchronous radii].
     """
 
     hidden: tuple[int, ...] = (24, 24)
     scale: float = 0.1
     envelope_radius: float = 1.0
     members: int = 1
+    softening: float = 0.0
 
     # Adam is the paper's protocol; its fit stops early, so it selects on the held-out arcs
     default_solver = "adam"
@@ -313,6 +319,9 @@ class NeuralPotential(GravityTerm):
             raise ValueError(f"an ensemble needs at least one member, got {self.members!r}")
         object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
         object.__setattr__(self, "members", int(self.members))
+        if not (math.isfinite(self.softening) and self.softening >= 0.0):
+            raise ValueError(f"the envelope's softening must be >= 0, got {self.softening!r}")
+        object.__setattr__(self, "softening", float(self.softening))
 
     @property
     def layer_sizes(self) -> tuple[int, ...]:
@@ -337,7 +346,16 @@ class NeuralPotential(GravityTerm):
 
     def member(self) -> NeuralPotential:
         """One member of the ensemble as a network of its own."""
-        return NeuralPotential(self.hidden, self.scale, self.envelope_radius)
+        return NeuralPotential(self.hidden, self.scale, self.envelope_radius, 1, self.softening)
+
+    def envelope_distance(self, points: np.ndarray) -> np.ndarray:
+        """rho / R_w at ``points`` (k, 3) [canonical]: the distance the envelope decays with,
+        in envelope radii (r / R_w without softening)."""
+        points = np.asarray(points, dtype=float)
+        if not self.softening:
+            return np.linalg.norm(points, axis=1) / self.envelope_radius
+        r2 = np.sum(points * points, axis=1) + self.softening**2
+        return np.sqrt(r2) / self.envelope_radius
 
     def network(self, offset: int = 0) -> hy.expression:
         """NN(x, y, z), dimensionless (the members' mean), parameters at ``par[offset:]``."""
@@ -357,6 +375,8 @@ class NeuralPotential(GravityTerm):
 
     def potential(self, offset: int = 0) -> hy.expression:
         r2 = x * x + y * y + z * z
+        if self.softening:
+            r2 = r2 + self.softening**2
         envelope = self.envelope_radius**3 / (r2 * hy.sqrt(r2))
         return self.scale * envelope * self.network(offset)
 
@@ -390,10 +410,11 @@ class NeuralPotential(GravityTerm):
 
     def key(self) -> str:
         members = f",x{self.members}" if self.members > 1 else ""
-        return f"nn({self.hidden},{self.scale!r},{self.envelope_radius!r}{members})"
+        softening = f",rc={self.softening!r}" if self.softening else ""
+        return f"nn({self.hidden},{self.scale!r},{self.envelope_radius!r}{members}{softening})"
 
     def describe(self) -> dict:
-        return {
+        out = {
             "kind": self.kind,
             "hidden": list(self.hidden),
             "scale": self.scale,
@@ -405,6 +426,9 @@ class NeuralPotential(GravityTerm):
                 "members one after the other, the potential uses their mean"
             ),
         }
+        if self.softening:  # absent: (R_w / r)^3, as in files written before it existed
+            out["envelope_softening"] = self.softening
+        return out
 
     @classmethod
     def from_description(cls, d: dict) -> NeuralPotential:
@@ -413,6 +437,7 @@ class NeuralPotential(GravityTerm):
             float(d["scale"]),
             float(d["envelope_radius"]),
             int(d.get("members", 1)),
+            float(d.get("envelope_softening", 0.0)),
         )
 
     @property
@@ -440,6 +465,7 @@ class NeuralPotential(GravityTerm):
             "scale": self.scale,
             "envelope_radius": self.envelope_radius,
             "envelope_power": 3,
+            "envelope_softening": self.softening,
             "members": [self.member_layers(b) for b in self.split_members(params)],
         }
 

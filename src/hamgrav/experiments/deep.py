@@ -215,6 +215,13 @@ class DeepCampaignConfig(CampaignConfig):
         "'zero-output' (the same with the output weights zero: no correction, the known "
         "part alone, at the start).",
     )
+    envelope_softening_rb: float = option(
+        0.0,
+        "Softening r_c of the network's envelope [R_B]: R_w^3 / (r^2 + r_c^2)^(3/2) for "
+        "(R_w / r)^3, which caps how much a change of the network is amplified near the "
+        "centre (0: none).",
+        at_least=0.0,
+    )
 
     def check(self) -> None:
         super().check()
@@ -238,6 +245,14 @@ class DeepCampaignConfig(CampaignConfig):
                 f"{label('deep_bins_rb')} must be two or more increasing edges in (0, 1], "
                 "e.g. 0.45,0.65,0.95"
             )
+
+
+def softening_of(config: DeepCampaignConfig) -> dict:
+    """The network rows' envelope-softening setting, given only when there is one (so the
+    settings of the runs before the option stay as they were)."""
+    if not config.envelope_softening_rb:
+        return {}
+    return {"envelope_softening_rb": config.envelope_softening_rb}
 
 
 @dataclass(frozen=True)
@@ -692,6 +707,7 @@ class DeepExperiment(Experiment):
             config.lm_iterations,
             harmonic=config.harmonic,
             network_start=config.network_start,
+            **softening_of(config),
             **known,
         )
         best["warm_solver"] = replace(

@@ -78,6 +78,7 @@ from .deep import (
     DeepCampaignConfig,
     _bin_summary,
     campaign_descents,
+    softening_of,
 )
 
 __all__ = ["DeepLadderConfig", "DeepLadderExperiment", "RUNGS", "oracle_fit"]
@@ -311,6 +312,7 @@ class DeepLadderExperiment(Experiment):
                 config.lm_iterations,
                 harmonic=config.harmonic,
                 network_start=config.network_start,
+                **softening_of(config),
                 **known,
             ),
             f"sh{config.sh_degree}": {"term": "sh", "degree": config.sh_degree, **known},
@@ -321,6 +323,7 @@ class DeepLadderExperiment(Experiment):
                 hidden=config.hidden,
                 adam_steps=config.adam_steps,
                 network_start=config.network_start,
+                **softening_of(config),
                 **known,
             )
         ladder, fits = {}, {}

@@ -172,7 +172,7 @@ class FieldAnchor(Regulariser):
         self._columns = slice(0, 1) if quantity == "potential" else slice(1, 4)
         radial = 1.0
         if quantity == "acceleration":
-            radial = (np.linalg.norm(points, axis=1) / term.envelope_radius) ** 4
+            radial = term.envelope_distance(points) ** 4
         self._row_scale = np.sqrt(self.weight) * np.broadcast_to(radial, len(points))
         target = np.asarray(target, dtype=float)[: model.n_learn]
         values, _ = evaluate_field_parameter_gradient(model, target, points)

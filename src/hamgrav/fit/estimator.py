@@ -456,6 +456,9 @@ class GravityEstimator:
             (the same with the output weights zero: the fit starts at no correction, the
             known part alone, so with a shape prior it never starts worse than the prior;
             the hidden layers keep their seeded variety). Warm starts start from ``init``.
+        envelope_softening_rb: the softening r_c of the network's envelope (R_w^3 / (r^2 +
+            r_c^2)^(3/2) for (R_w / r)^3; :class:`~hamgrav.core.terms.NeuralPotential`) [R_B,
+            the body's Brillouin radius]; 0 (default): none.
         client: a ``dask.distributed`` Client: the fit's sums over arcs (costs, gradient,
             normal equations) run on its workers, which hold the arcs in chunks
             (:mod:`hamgrav.fit.distributed`); the numbers equal an in-process fit's to
@@ -497,6 +500,7 @@ class GravityEstimator:
         cv_group: str | None = None,
         cv_rule: str | None = None,
         network_start: str = "random",
+        envelope_softening_rb: float = 0.0,
         client=None,
     ):
         self.term = term
@@ -527,6 +531,7 @@ class GravityEstimator:
         self.cv_group = cv_group
         self.cv_rule = cv_rule
         self.network_start = network_start
+        self.envelope_softening_rb = envelope_softening_rb
         self.client = client
 
     # ----------------------------------------------------------------- decisions, one place
@@ -563,7 +568,16 @@ class GravityEstimator:
         if self.term == "network":
             if int(self.members) < 1:
                 raise InputError(f"members must be at least 1, got {self.members!r}")
-            return NeuralPotential(tuple(int(h) for h in self.hidden), members=self.members)
+            softening = float(self.envelope_softening_rb)
+            if not (np.isfinite(softening) and softening >= 0.0):
+                raise InputError(
+                    f"the envelope's softening must be >= 0 R_B, got {self.envelope_softening_rb!r}"
+                )
+            return NeuralPotential(
+                tuple(int(h) for h in self.hidden),
+                members=self.members,
+                softening=softening * body.brillouin_radius,
+            )
         if _is_choice(self.degree):
             raise InputError(
                 f"degree {self.degree!r} is chosen by cross-validation in fit(); a model "

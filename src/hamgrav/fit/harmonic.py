@@ -47,7 +47,7 @@ class HarmonicPenalty(Regulariser):
         self.model = model
         self.points = points
         self.weight = float(weight)
-        radius = np.linalg.norm(points, axis=1) / model.learnable.envelope_radius
+        radius = model.learnable.envelope_distance(points)
         self._row_scale = np.sqrt(self.weight) * radius**5
 
     def terms(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

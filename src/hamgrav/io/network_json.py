@@ -9,7 +9,9 @@ the shape model's frame):
   "mu"}`` (mu / r: the central term) or ``{"kind": "mascons", "positions" (n, 3),
   "masses" (n,)}`` (sum m_i / |q - q_i|: a shape prior, whose masses sum to 1 and so
   carries the central term);
-- ``network``: the learned correction N(q) = scale * (envelope_radius / |q|)^3 * NN(q), NN
+- ``network``: the learned correction N(q) = scale * (envelope_radius / rho)^3 * NN(q),
+  rho = sqrt(|q|^2 + envelope_softening^2) (files written before the softening existed have
+  none: rho = |q|), NN
   the mean over ``members`` of a fully connected network with inputs (x, y, z), tanh hidden
   layers and one linear output: x_{k+1} = tanh(W_k x_k + b_k), output W x + b, with
   ``weights[k]`` of shape (out, in) and ``biases[k]`` of shape (out,);
@@ -63,7 +65,8 @@ def network_document(fitted: FittedModel) -> dict:
         "hamgrav_version": __version__,
         "description": (
             "V(q) = sum of the known terms + N(q), positive (acceleration = grad V), canonical "
-            "units; N(q) = scale * (envelope_radius / |q|)^3 * mean over members of NN(q); NN: "
+            "units; N(q) = scale * (envelope_radius / rho)^3 * mean over members of NN(q), rho = "
+            "sqrt(|q|^2 + envelope_softening^2); NN: "
             "x_{k+1} = tanh(W_k x_k + b_k) on hidden layers, linear output; weights[k] is "
             "(out, in); point-mass: mu / |q|; mascons: sum m_i / |q - q_i|"
         ),
