@@ -1,6 +1,11 @@
 import numpy as np
 
-from hamgrav.core.fields import field_errors, pointwise_field_errors, shell_points
+from hamgrav.core.fields import (
+    acceleration_field_error,
+    field_errors,
+    pointwise_field_errors,
+    shell_points,
+)
 from hamgrav.core.mascons import MasconSet, mascon_potential
 from hamgrav.core.model import Model
 from hamgrav.core.terms import MasconTerm, PointMass, SphericalHarmonics
@@ -33,6 +38,33 @@ def test_errors_are_of_the_whole_model_against_the_perturbation():
     sh = SphericalHarmonics(2, 1.0)
     residual = Model((MasconTerm(prior),), sh)
     assert np.isclose(field_errors(residual, np.zeros(sh.n_params), truth, pts)["r1.5"], alone)
+
+
+def test_acceleration_error_against_central_differences_of_the_potential():
+    truth, prior = _truth_and_prior()
+    pts = shell_points(1.2, 200, seed=3)
+    assert np.isclose(
+        acceleration_field_error(Model((PointMass(),)), np.zeros(0), truth, pts), 1.0, rtol=1e-12
+    )
+    assert acceleration_field_error(Model((MasconTerm(truth),)), np.zeros(0), truth, pts) < 1e-12
+
+    # the prior's miss, from central differences of the potentials (independent of the
+    # acceleration code)
+    def gradient(mascons):
+        h, out = 1e-6, np.zeros_like(pts)
+        for k in range(3):
+            step = np.zeros(3)
+            step[k] = h
+            out[:, k] = (
+                mascon_potential(mascons, pts + step) - mascon_potential(mascons, pts - step)
+            ) / (2 * h)
+        return out
+
+    central = -pts / np.linalg.norm(pts, axis=1, keepdims=True) ** 3
+    miss = gradient(prior) - gradient(truth)
+    expected = np.sqrt(np.sum(miss**2) / np.sum((gradient(truth) - central) ** 2))
+    alone = acceleration_field_error(Model((MasconTerm(prior),)), np.zeros(0), truth, pts)
+    assert 0.0 < alone < 1.0 and np.isclose(alone, expected, rtol=1e-6)
 
 
 def test_pointwise_errors_are_the_one_point_field_error():

@@ -427,6 +427,14 @@ def test_deep_tiny(tmp_path):
         f"- seed 0, network-best: change {after['deep_change']:.3g}, spread "
         f"{after['deep_spread_before']:.3g} -> {after['deep_spread_after']:.3g}" in readme
     )
+    # the truth's error of the acceleration on the deep set, for every refitted model
+    for m in ("network-best", "sh3"):
+        s = rep["descents_summary"][m]
+        assert 0 < s["deep_acceleration_before"] < 1e6 and 0 < s["deep_acceleration_after"] < 1e6
+    assert (
+        f"(of the acceleration, what the descents observe: {after['deep_acceleration_before']:.3g}"
+        f" -> {after['deep_acceleration_after']:.3g})" in readme
+    )
     # the orders: two random permutations of the same orbits, D-optimal flies each once
     orders = rep["orders"]
     assert orders["n_orbits"] == [2, 4] and orders["fixed"] == [

@@ -98,6 +98,20 @@ def field_errors(
     }
 
 
+def acceleration_field_error(
+    model: Model, params: np.ndarray, truth: MasconSet, points: np.ndarray
+) -> float:
+    """Relative error of the whole ``model``'s perturbing acceleration (the gradient of its
+    perturbing potential) against the truth's at canonical ``points`` (n, 3):
+    sqrt(sum |a_model - a_truth|^2 / sum |a_truth|^2), dimensionless (1 for the point mass
+    alone). What tracking observes, where :func:`field_errors` scores the potential."""
+    points = np.atleast_2d(np.asarray(points, dtype=float))
+    central = -points / np.linalg.norm(points, axis=1, keepdims=True) ** 3
+    _, a_model = evaluate_field(model, params, points, which="total")
+    a_truth = mascon_acceleration(truth, points)
+    return relative_field_error(a_model - central, a_truth - central)
+
+
 def pointwise_field_errors(
     model: Model, params: np.ndarray, truth: MasconSet, points: np.ndarray
 ) -> np.ndarray:

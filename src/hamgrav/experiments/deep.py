@@ -66,7 +66,7 @@ from ..bodies.evaluation import (
 )
 from ..bodies.interiors import Truth
 from ..core.arcs import Arcs, join_arcs, sample_radii
-from ..core.fields import member_spread, model_perturbing_potential
+from ..core.fields import acceleration_field_error, member_spread, model_perturbing_potential
 from ..errors import InputError
 from ..fit.anchor import ANCHOR_QUANTITIES, AnchorSettings
 from ..fit.continual import ContinualFit
@@ -532,6 +532,24 @@ def _refit_agreement(before: dict, after: dict, truth: Truth, config, ctx) -> di
     return out
 
 
+def _deep_acceleration(before: dict, after: dict, truth: Truth, config, ctx) -> dict:
+    """For each refitted model ({name: (model, params)} in both), the truth's relative error
+    of the perturbing acceleration on the deep set before and after the descent refit
+    (``deep_acceleration_before`` / ``_after``): what the tracked descents observe, beside
+    the potential the deep set is scored on."""
+    points = deep_set(truth.body, config.altitude_m, ctx.seed)
+    return {
+        name: {
+            f"deep_acceleration_{when}": significant(
+                acceleration_field_error(*fitted[name], truth.mascons, points)
+            )
+            for when, fitted in (("before", before), ("after", after))
+        }
+        for name in after
+        if name in before
+    }
+
+
 def _bin_summary(by_bin: dict) -> tuple[float | None, float | None]:
     """(deepest, worst) of a model's bins: the first bin holding points, and the largest."""
     values = [v for v in by_bin.values() if v is not None]
@@ -861,6 +879,8 @@ class DeepExperiment(Experiment):
             )
             for name, agreement in _refit_agreement(finals, after, truth, config, ctx).items():
                 result["descents_summary"][name].update(agreement)
+            for name, errors in _deep_acceleration(finals, after, truth, config, ctx).items():
+                result["descents_summary"][name].update(errors)
             result["descents"] = {**descents, "fits": descent_fits}
             lap("evaluate_descents")
         result.update(self._orders(arcs, truth, best, sizes, stages, shells, tracking, ctx, config))

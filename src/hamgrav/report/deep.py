@@ -524,10 +524,18 @@ def _descents_section(report: dict, net: str) -> list[str]:
         ]
         for seed, m, a in agreement:
             f = {k: "n/a" if v is None else f"{v:.3g}" for k, v in a.items()}
+            # the acceleration's error: recorded by the runs after it was added
+            acceleration = (
+                f" (of the acceleration, what the descents observe: "
+                f"{f['deep_acceleration_before']} -> "
+                f"{f['deep_acceleration_after']})"
+                if "deep_acceleration_after" in f
+                else ""
+            )
             lines.append(
                 f"- seed {seed}, {m}: change {f['deep_change']}, spread "
                 f"{f['deep_spread_before']} -> {f['deep_spread_after']}; error "
-                f"{f['deep_before']} -> {f['deep_after']}"
+                f"{f['deep_before']} -> {f['deep_after']}{acceleration}"
             )
     with_descents = [r for r in reps if "descents" in r]
     restarts = {
