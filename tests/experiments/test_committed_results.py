@@ -45,6 +45,7 @@ BEFORE_THE_OPTION = {
     "descent_anchor_on": "acceleration",
     "network_start": "random",
     "envelope_softening_rb": 0.0,
+    "descent_noise": 1.0,
 }
 
 

@@ -1,6 +1,8 @@
 """The deep-region experiment's pieces: its default campaign, the stage orders, the tracked
 descents and their report (the D-optimal choice: tests/fit/test_d_optimal.py)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import trimesh
@@ -152,3 +154,19 @@ def test_the_descent_report_says_which_refits_restarted_and_what_they_left():
     # no restart anywhere: no such paragraph
     quiet = _descent_report([{"sh8": fit(True)}])
     assert "refitted from its initialisation" not in "\n".join(_descents_section(quiet, "x"))
+
+
+def test_descent_noise_scales_the_descents_noise_only(synthetic_truth):
+    """--descent-noise scales the descents' position noise (0: their states are the truth's)
+    and leaves the same descents: the same true states, the noise drawn the same way."""
+    from hamgrav.experiments.deep import campaign_descents
+
+    config = DeepExperimentConfig(body="synthetic", descents=2)
+    nominal = campaign_descents(synthetic_truth, config, 3)
+    quiet = campaign_descents(synthetic_truth, replace(config, descent_noise=0.0), 3)
+    half = campaign_descents(synthetic_truth, replace(config, descent_noise=0.5), 3)
+    np.testing.assert_array_equal(quiet.true_states, nominal.true_states)
+    np.testing.assert_allclose(quiet.states, quiet.true_states, rtol=0, atol=1e-14)
+    noise = nominal.states - nominal.true_states
+    assert np.abs(noise[..., :3]).max() > 0
+    np.testing.assert_allclose(half.states - half.true_states, 0.5 * noise, atol=1e-15)

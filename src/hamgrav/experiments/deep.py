@@ -215,6 +215,12 @@ class DeepCampaignConfig(CampaignConfig):
         "'zero-output' (the same with the output weights zero: no correction, the known "
         "part alone, at the start).",
     )
+    descent_noise: float = option(
+        1.0,
+        "Scale of the descents' tracking noise, relative to the orbital arcs' (1: the same; "
+        "0: noise-free descents, a diagnosis of what the noise costs the assimilation).",
+        at_least=0.0,
+    )
     envelope_softening_rb: float = option(
         0.0,
         "Softening r_c of the network's envelope [R_B]: R_w^3 / (r^2 + r_c^2)^(3/2) for "
@@ -558,8 +564,11 @@ def _bin_summary(by_bin: dict) -> tuple[float | None, float | None]:
 
 def campaign_descents(truth: Truth, config: DeepCampaignConfig, seed: int) -> Arcs:
     """The campaign's ``descents`` deployment descents, tracked with its orbital arcs'
-    samples and noise over ``descent_span`` (:func:`hamgrav.sim.descent.tracked_descents`)."""
+    samples and noise (times ``descent_noise``) over ``descent_span``
+    (:func:`hamgrav.sim.descent.tracked_descents`)."""
     tracking = config.campaign(seed).tracking
+    if config.descent_noise != 1.0:
+        tracking = replace(tracking, sigma_r_m=tracking.sigma_r_m * config.descent_noise)
     return tracked_descents(
         truth, config.descents, DescentConfig(), tracking, seed=seed, span=config.descent_span
     )
