@@ -176,6 +176,38 @@ def test_fit_network_writes_model(arcs_file, tmp_path):
     assert fitted.solver["name"] == "adam"
 
 
+def test_fit_envelope_softening(small_arcs, tmp_path):
+    """--envelope-softening-rb gives the network's envelope a softening in R_B of the body,
+    carried by the model file; a continued fit must give the same; checked first."""
+    from hamgrav.fit.estimator import body_for_arcs
+    from hamgrav.io.arcs import save_arcs
+    from hamgrav.io.models import load_model
+
+    first = save_arcs(small_arcs.subset(range(5)), tmp_path / "first.h5")
+    everything = save_arcs(small_arcs, tmp_path / "all.h5")
+    base = ["--model", "network", "--hidden", "6", "--steps", "3"]
+    soft, out = tmp_path / "soft.h5", tmp_path / "out.h5"
+    result = runner.invoke(
+        app, ["fit", str(first), *base, "--envelope-softening-rb", "0.3", "-o", str(soft)]
+    )
+    assert result.exit_code == 0, result.output
+    r_b = body_for_arcs(small_arcs).brillouin_radius  # about the arcs' frame origin
+    term = load_model(soft).model.learnable
+    assert term.softening == pytest.approx(0.3 * r_b, rel=1e-12)
+    # a continued fit keeps its model's envelope: the same softening, or it is refused
+    again = ["fit", str(everything), *base, "--init", str(soft), "-o", str(out)]
+    assert runner.invoke(app, [*again, "--envelope-softening-rb", "0.3"]).exit_code == 0
+    other = runner.invoke(app, [*again, "--envelope-softening-rb", "0.2"])
+    assert other.exit_code == 2 and "structure" in other.output
+    for extra, message in (
+        (["--envelope-softening-rb", "-1"], "--envelope-softening-rb must be a finite number >= 0"),
+        (["--model", "sh:3", "--envelope-softening-rb", "0.3"], "applies to networks"),
+    ):
+        result = runner.invoke(app, ["fit", str(first), *extra, "-o", str(tmp_path / "x.h5")])
+        assert result.exit_code == 2 and message in " ".join(result.output.split()), result.output
+        assert not (tmp_path / "x.h5").exists()
+
+
 def test_fit_rejects_bad_options(arcs_file, tmp_path):
     out = tmp_path / "m.h5"
     result = runner.invoke(app, ["fit", str(arcs_file), "--model", "sh:1", "-o", str(out)])

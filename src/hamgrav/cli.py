@@ -873,6 +873,14 @@ FitModelOption = Annotated[
     ),
 ]
 HiddenOption = Annotated[str, typer.Option(help="Hidden layer sizes of the network.")]
+SofteningOption = Annotated[
+    float,
+    typer.Option(
+        help="Softening r_c of the network's envelope [R_B]: R_w^3 / (r^2 + r_c^2)^(3/2) for "
+        "(R_w / r)^3, which caps how much a change of the network is amplified deep inside "
+        "the Brillouin sphere (0: none; a continued fit gives its model's).",
+    ),
+]
 PriorOption = Annotated[
     str | None,
     typer.Option(help="'shape': constant-density shape prior in the known part."),
@@ -1007,6 +1015,7 @@ def fit(
     output: Annotated[Path, typer.Option("-o", "--output", help="Model file to write.")],
     model: FitModelOption = "network-best",
     hidden: HiddenOption = "24,24",
+    envelope_softening_rb: SofteningOption = 0.0,
     prior: PriorOption = None,
     solver: SolverOption = None,
     weighted: WeightedOption = False,
@@ -1042,6 +1051,7 @@ def fit(
     settings, kaula_value, hidden_sizes = _fit_options(
         model, hidden, prior, solver, kaula, harmonic, folds, cv_group, workers, scheduler, steps
     )
+    settings |= _softening_option(envelope_softening_rb, settings["term"])
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)
     shared = _share(share)
@@ -1186,6 +1196,18 @@ def _fit_estimator(settings: dict, arcs, arcs_file: Path, weighted: bool, body_o
             "by; leave out --weighted"
         )
     return GravityEstimator(**settings, weighted=weighted, body=body_obj)
+
+
+def _softening_option(value: float, term: str) -> dict:
+    """fit's --envelope-softening-rb checked: the estimator setting (none when 0)."""
+    _number(value, "--envelope-softening-rb", 0.0)
+    if not value:
+        return {}
+    if term != "network":
+        raise InputError(
+            "--envelope-softening-rb applies to networks (--model network-best or network)"
+        )
+    return {"envelope_softening_rb": float(value)}
 
 
 def _fit_options(

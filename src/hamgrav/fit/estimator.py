@@ -800,6 +800,8 @@ class GravityEstimator:
         for name, value in self.get_params().items():
             if name in skip:
                 continue
+            if name == "envelope_softening_rb" and not value:
+                continue  # none: the identity of the checkpoints written before it existed
             if isinstance(value, Solver):
                 value = value.describe()
             elif isinstance(value, GravityTerm):
