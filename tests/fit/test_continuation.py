@@ -88,6 +88,15 @@ def test_the_checkpoint_identity_tells_fits_apart(first, small_arcs, synthetic_t
     others += weighed[1:]
     assert weighed[1] != weighed[2]
     assert all(other != base for other in others)
+    # no softening: the identity of the checkpoints written before the option existed
+    assert "envelope_softening_rb" not in base["settings"]
+    soft = GravityEstimator("network", hidden=(4,), envelope_softening_rb=0.3, body=body)
+    assert (
+        soft.checkpoint_identity(small_arcs, soft.make_solver())["settings"][
+            "envelope_softening_rb"
+        ]
+        == 0.3
+    )
     import json
 
     json.dumps(base)  # plain data: it is written into the checkpoint
