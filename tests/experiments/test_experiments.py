@@ -577,8 +577,12 @@ def test_deep_tiny_with_the_descent_refit_anchored(tmp_path):
         tmp_path,
         *("--descent-anchor", "0.1", "--descent-anchor-clearance-rb", "0.2"),
         *("--descent-anchor-on", "potential"),
+        *("--envelope-softening-rb", "0.3"),
     )
     assert config["descent_anchor"] == 0.1 and config["descent_anchor_on"] == "potential"
+    # the network rows' envelope softened, said where the README describes the network
+    assert config["envelope_softening_rb"] == 0.3
+    assert "hidden layers 4, its envelope softened at r_c = 0.3 R_B" in readme
     # the network's refit is anchored away from the descents, its control (no new arcs) at
     # the same points, and SH not at all
     assert net["anchor"]["weight"] == 0.1 and 0 < net["anchor"]["points"] < 1500

@@ -76,6 +76,12 @@ def deep_readme(report: dict, paper: dict) -> list[str]:
         f"previous one: SH of degree {', '.join(m[2:] for m in sh)} (LM) and `{net}` (the "
         f"network-best configuration, hidden layers {','.join(map(str, cfg['hidden']))}"
         + (
+            f", its envelope softened at r_c = {cfg['envelope_softening_rb']:g} R_B "
+            "(R_w^3 / (r^2 + r_c^2)^(3/2) for (R_w / r)^3)"
+            if cfg.get("envelope_softening_rb")
+            else ""
+        )
+        + (
             f", with the harmonic penalty of weight {cfg['harmonic']:g}: its Laplacian, scaled "
             "by (r / R_w)^5, pushed to zero at 1500 points outside the body"
             if cfg.get("harmonic")
