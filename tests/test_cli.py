@@ -208,6 +208,28 @@ def test_fit_envelope_softening(small_arcs, tmp_path):
         assert not (tmp_path / "x.h5").exists()
 
 
+def test_fit_prior_placement(arcs_file, tmp_path):
+    from hamgrav.core.terms import PointDipole
+    from hamgrav.io.models import load_model
+
+    out = tmp_path / "in-place.h5"
+    base = ["fit", str(arcs_file), "--model", "sh:2"]
+    result = runner.invoke(
+        app, [*base, "--prior", "shape", "--prior-placement", "in-place", "-o", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    prior, dipole = load_model(out).model.known
+    assert isinstance(dipole, PointDipole)
+    np.testing.assert_allclose(dipole.moment, -prior.mascons.centre_of_mass, atol=1e-12)
+    for extra, message in (
+        (["--prior-placement", "in-place"], "--prior-placement in-place needs --prior shape"),
+        (["--prior", "shape", "--prior-placement", "moved"], "--prior-placement must be"),
+    ):
+        result = runner.invoke(app, [*base, *extra, "-o", str(tmp_path / "x.h5")])
+        assert result.exit_code == 2 and message in " ".join(result.output.split()), result.output
+        assert not (tmp_path / "x.h5").exists()
+
+
 def test_fit_rejects_bad_options(arcs_file, tmp_path):
     out = tmp_path / "m.h5"
     result = runner.invoke(app, ["fit", str(arcs_file), "--model", "sh:1", "-o", str(out)])

@@ -873,6 +873,14 @@ FitModelOption = Annotated[
     ),
 ]
 HiddenOption = Annotated[str, typer.Option(help="Hidden layer sizes of the network.")]
+PlacementOption = Annotated[
+    str,
+    typer.Option(
+        help="With --prior shape: 'centred' (its constant-density centre of mass moved to the "
+        "frame's origin) or 'in-place' (the shape where it is, plus the point dipole that takes "
+        "the offset back out: the field near the surface of the shape itself).",
+    ),
+]
 SofteningOption = Annotated[
     float,
     typer.Option(
@@ -1017,6 +1025,7 @@ def fit(
     hidden: HiddenOption = "24,24",
     envelope_softening_rb: SofteningOption = 0.0,
     prior: PriorOption = None,
+    prior_placement: PlacementOption = "centred",
     solver: SolverOption = None,
     weighted: WeightedOption = False,
     share: ShareOption = None,
@@ -1052,6 +1061,7 @@ def fit(
         model, hidden, prior, solver, kaula, harmonic, folds, cv_group, workers, scheduler, steps
     )
     settings |= _softening_option(envelope_softening_rb, settings["term"])
+    settings |= _placement_option(prior_placement, prior)
     _number(learning_rate, "--learning-rate", 0.0, open_low=True)
     _seed(seed)
     shared = _share(share)
@@ -1196,6 +1206,17 @@ def _fit_estimator(settings: dict, arcs, arcs_file: Path, weighted: bool, body_o
             "by; leave out --weighted"
         )
     return GravityEstimator(**settings, weighted=weighted, body=body_obj)
+
+
+def _placement_option(value: str, prior: str | None) -> dict:
+    """fit's --prior-placement checked: the estimator setting (none for the default)."""
+    if value not in ("centred", "in-place"):
+        raise InputError(f"--prior-placement must be 'centred' or 'in-place', got {value!r}")
+    if value == "centred":
+        return {}
+    if prior != "shape":
+        raise InputError("--prior-placement in-place needs --prior shape")
+    return {"prior_placement": value}
 
 
 def _softening_option(value: float, term: str) -> dict:

@@ -297,3 +297,33 @@ def test_registry_rebuilds_every_term_and_a_new_one(cluster, monkeypatch):
         register_term("sh", Dipole)
     with pytest.raises(ValueError, match="unknown term kind 'nope'"):
         term_from_description({"kind": "nope"})
+
+
+def test_point_dipole_is_the_first_order_of_a_displaced_mass():
+    from hamgrav.core.shexpansion import mascon_tables
+    from hamgrav.core.terms import PointDipole, term_from_description
+
+    d = np.array([0.03, -0.02, 0.05])
+    dipole = PointDipole(tuple(d))
+    pts = shell_points(1.0, 50, seed=4) * np.linspace(2.0, 40.0, 50)[:, None]
+    v, a = evaluate_field(Model((PointMass(), dipole)), np.zeros(0), pts, which="total")
+    r = np.linalg.norm(pts, axis=1)
+    assert np.allclose(v, 1 / r + pts @ d / r**3, rtol=1e-14)
+    # a unit mass at d: 1 / |q - d| = 1 / r + (d . q) / r^3 + O(|d|^2 / r^3)
+    shifted = 1 / np.linalg.norm(pts - d, axis=1)
+    assert np.all(np.abs(v - shifted) <= 2.0 * (d @ d) / r**3)
+    # the acceleration is the gradient of the dipole's potential, by hand
+    expected = (
+        -1 * pts / r[:, None] ** 3
+        + d / r[:, None] ** 3
+        - 3 * (pts @ d)[:, None] * pts / r[:, None] ** 5
+    )
+    assert np.allclose(a, expected, rtol=1e-12)
+    # its degree-1 SH coefficients are those of the unit mass at d (pyshtools-checked mascons)
+    tables = dipole.sh_tables(None, 3, 0.8)
+    c, s = mascon_tables(MasconSet(d[None, :], np.ones(1)), 3, 0.8)
+    assert np.allclose(tables.c[1], c[1], rtol=1e-12) and np.allclose(tables.s[1], s[1], rtol=1e-12)
+    assert not tables.c[0].any() and not tables.c[2:].any() and tables.exact
+    assert term_from_description(dipole.describe()) == dipole and dipole.n_params == 0
+    with pytest.raises(ValueError, match="three finite numbers"):
+        PointDipole((1.0, np.nan, 0.0))

@@ -46,6 +46,7 @@ BEFORE_THE_OPTION = {
     "network_start": "random",
     "envelope_softening_rb": 0.0,
     "descent_noise": 1.0,
+    "prior_placement": "centred",
 }
 
 

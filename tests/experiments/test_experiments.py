@@ -252,6 +252,13 @@ def test_descent_with_both_blocks_tiny(tmp_path):
             ["deep", "--descent-anchor-on", "geoid"],
             "--descent-anchor-on must be one of acceleration, potential, got 'geoid'",
         ),
+        (
+            ["deep", "--prior", "shape", "--prior-placement", "moved"],
+            "--prior-placement must be one of centred, in-place, got 'moved'",
+        ),
+        (["deep", "--prior-placement", "in-place"], "--prior-placement needs --prior shape"),
+        (["deep", "--descent-noise", "-1"], "--descent-noise must be at least 0"),
+        (["deep", "--envelope-softening-rb", "-0.1"], "--envelope-softening-rb must be at least 0"),
         (["descent", "--sh-degrees", "4,1"], "of --sh-degrees must be at least 2, got 4,1"),
         (["descent", "--shells-rb", "0.5"], "every value of --shells-rb must be at least 1.0"),
         (["descent", "--altitude-m", "-5"], "--altitude-m must be above 0, got -5.0"),
@@ -655,6 +662,18 @@ def test_deep_tiny_on_the_shape_prior(tmp_path):
     assert data["config"]["network_start"] == "zero-output"
     assert data["repetitions"][0]["fits"]["network-best"]["network_start"] == "zero-output"
     assert data["repetitions"][0]["prior_alone"] == rep["prior_alone"]
+    # the prior left where the shape is: another known part, said in the README
+    out = tmp_path / "in-place"
+    result = runner.invoke(
+        app, [*args, "--prior", "shape", "--prior-placement", "in-place", "-o", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    data = json.loads((out / "results.json").read_text())
+    assert data["config"]["prior_placement"] == "in-place"
+    # a uniform truth: the centres of mass agree, so the placement barely moves the prior
+    in_place = data["repetitions"][0]["prior_alone"]["shape"]
+    assert in_place["exterior"] == pytest.approx(alone["exterior"], rel=0.05)
+    assert "the shape left where it is, with the point dipole" in (out / "README.md").read_text()
 
 
 def test_swarm_tiny(tmp_path):

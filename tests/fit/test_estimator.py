@@ -150,6 +150,43 @@ def test_shape_prior_is_centred_on_its_own_centre_of_mass(small_arcs, synthetic_
     assert np.linalg.norm(synthetic_truth.body.constant_density_centre_of_mass) > 1e-3
 
 
+def test_shape_prior_in_place_keeps_the_shape_and_takes_its_dipole_out(small_arcs, synthetic_truth):
+    from hamgrav.core.fields import shell_points
+    from hamgrav.core.model import evaluate_field
+    from hamgrav.core.terms import PointDipole
+
+    body = synthetic_truth.body
+    centred, _ = GravityEstimator("none", prior="shape", prior_mascons=30, body=body).build_model(
+        small_arcs
+    )
+    model, info = GravityEstimator(
+        "none", prior="shape", prior_mascons=30, prior_placement="in-place", body=body
+    ).build_model(small_arcs)
+    prior, dipole = model.known
+    offset = np.asarray(body.constant_density_centre_of_mass)
+    # the mascons where the shape is (their centre of mass at the constant-density one) ...
+    np.testing.assert_allclose(prior.mascons.centre_of_mass, offset, atol=1e-12)
+    np.testing.assert_allclose(
+        prior.mascons.positions - offset, centred.known[0].mascons.positions, atol=1e-12
+    )
+    # ... and the dipole that brings the known part's centre of mass back to the origin
+    assert isinstance(dipole, PointDipole) and np.allclose(dipole.moment, -offset, rtol=1e-15)
+    assert info["placement"] == "in-place"
+    np.testing.assert_allclose(info["offset_m"], offset * body.units.length_m, rtol=1e-12)
+    # far out the two known parts agree to second order in the offset (no dipole in either)
+    far = shell_points(30.0, 200, seed=2)
+    v_place, _ = evaluate_field(model, np.zeros(0), far, which="total")
+    v_centre, _ = evaluate_field(centred, np.zeros(0), far, which="total")
+    gap = np.abs(v_place - v_centre).max()
+    assert gap < 5 * (offset @ offset) / 30.0**3
+    # without the dipole they would differ at first order
+    assert gap < 0.01 * np.abs(far @ offset).max() / 30.0**3
+    with pytest.raises(InputError, match="prior_placement must be 'centred' or 'in-place'"):
+        GravityEstimator("none", prior="shape", prior_placement="moved", body=body).build_model(
+            small_arcs
+        )
+
+
 def test_known_part_alone(small_arcs, synthetic_truth):
     est = GravityEstimator("none", body=synthetic_truth.body).fit(small_arcs)
     assert est.params_.size == 0 and est.model_.learnable is None

@@ -12,7 +12,13 @@ import pytest
 from hamgrav.core.fields import shell_points
 from hamgrav.core.mascons import MasconSet
 from hamgrav.core.model import Model, evaluate_field
-from hamgrav.core.terms import MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
+from hamgrav.core.terms import (
+    MasconTerm,
+    NeuralPotential,
+    PointDipole,
+    PointMass,
+    SphericalHarmonics,
+)
 from hamgrav.errors import InputError
 from hamgrav.fit.fitted import FittedModel
 from hamgrav.io.network_json import network_document, write_network_json
@@ -188,9 +194,15 @@ def readme_evaluator():
     return namespace["hamgrav_network_potential"]
 
 
-@pytest.mark.parametrize("with_prior, softening", [(False, 0.0), (True, 0.0), (False, 0.3)])
-def test_json_network_evaluated_by_the_readme_function(prior, with_prior, softening, tmp_path):
+@pytest.mark.parametrize(
+    "with_prior, softening, dipole", [(False, 0.0, False), (True, 0.0, False), (False, 0.3, True)]
+)
+def test_json_network_evaluated_by_the_readme_function(
+    prior, with_prior, softening, dipole, tmp_path
+):
     known = (prior,) if with_prior else (PointMass(),)
+    if dipole:  # a prior left in place brings its dipole
+        known += (PointDipole((0.02, -0.01, 0.03)),)
     fitted = network_fitted(known, members=2 if with_prior else 1, softening=softening)
     path = write_network_json(fitted, tmp_path / "net.json")
     evaluate = readme_evaluator()
@@ -202,7 +214,8 @@ def test_json_network_evaluated_by_the_readme_function(prior, with_prior, soften
     assert doc["network"]["layer_sizes"] == [3, 10, 8, 1]
     assert doc["units"]["length_m"] == UNITS.length_m
     assert doc["body"]["name"] == "itokawa" and doc["body"]["gm_m3_s2"] == GM
-    assert [k["kind"] for k in doc["known"]] == (["mascons"] if with_prior else ["point-mass"])
+    kinds = (["mascons"] if with_prior else ["point-mass"]) + (["point-dipole"] if dipole else [])
+    assert [k["kind"] for k in doc["known"]] == kinds
 
 
 def test_json_refuses_sh_models(sh_fitted):

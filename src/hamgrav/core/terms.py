@@ -44,6 +44,7 @@ __all__ = [
     "register_term",
     "registered_terms",
     "PointMass",
+    "PointDipole",
     "MasconTerm",
     "NeuralPotential",
     "SphericalHarmonics",
@@ -221,6 +222,49 @@ class PointMass(GravityTerm):
         c, s = np.zeros((degree + 1, degree + 1)), np.zeros((degree + 1, degree + 1))
         c[0, 0] = self.mu
         return SHTables(c, s, True, f"central term (GM times {self.mu!r}): C00, exact")
+
+    def export_json(self, params=None) -> dict:
+        return self.describe()
+
+
+@register_term("point-dipole")
+@dataclass(frozen=True)
+class PointDipole(GravityTerm):
+    """A point dipole at the origin, (d . q) / r^3: the first-order potential of a unit mass
+    displaced by ``moment`` d [canonical length] from the origin (a known term: e.g. what
+    brings a shape prior left where the shape is back to the frame's centre of mass)."""
+
+    moment: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        moment = tuple(float(v) for v in self.moment)
+        if len(moment) != 3 or not all(math.isfinite(v) for v in moment):
+            raise ValueError(f"a dipole moment is three finite numbers, got {self.moment!r}")
+        object.__setattr__(self, "moment", moment)
+
+    def potential(self, offset: int = 0) -> hy.expression:
+        r2 = x * x + y * y + z * z
+        dx, dy, dz = self.moment
+        return (dx * x + dy * y + dz * z) / (r2 * hy.sqrt(r2))
+
+    def key(self) -> str:
+        return f"dipole({self.moment!r})"
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "moment": list(self.moment)}
+
+    @classmethod
+    def from_description(cls, d: dict) -> PointDipole:
+        return cls(tuple(float(v) for v in d["moment"]))
+
+    def sh_tables(self, params, degree: int, reference_radius: float) -> SHTables:
+        # (d . q) / r^3 = (1 / r) (R / r) sum over m of the degree-1 terms, 4-pi normalised
+        # (P_10 = sqrt(3) sin(lat), P_11 = sqrt(3) cos(lat)): C10 = d_z / (sqrt(3) R), ...
+        c, s = np.zeros((degree + 1, degree + 1)), np.zeros((degree + 1, degree + 1))
+        if degree >= 1:
+            dx, dy, dz = np.asarray(self.moment) / (math.sqrt(3.0) * reference_radius)
+            c[1, 0], c[1, 1], s[1, 1] = dz, dx, dy
+        return SHTables(c, s, True, f"point dipole {self.moment!r}: degree 1, exact")
 
     def export_json(self, params=None) -> dict:
         return self.describe()

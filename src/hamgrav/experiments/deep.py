@@ -143,6 +143,7 @@ NETWORK = "network-best"
 SAMPLE_FLOOR_RB = 0.96
 #: The known parts a deep-region model can sit on (the ``prior`` option).
 PRIORS = ("none", "shape")
+PRIOR_PLACEMENTS = ("centred", "in-place")
 
 
 @dataclass(frozen=True)
@@ -215,6 +216,13 @@ class DeepCampaignConfig(CampaignConfig):
         "'zero-output' (the same with the output weights zero: no correction, the known "
         "part alone, at the start).",
     )
+    prior_placement: str = option(
+        "centred",
+        "With prior 'shape': 'centred' (the paper's: the shape's constant-density centre of "
+        "mass moved to the frame's origin, so the shape itself moves by the offset between "
+        "the two centres of mass) or 'in-place' (the shape where it is, plus the point "
+        "dipole that takes that offset out of the known part's exterior).",
+    )
     descent_noise: float = option(
         1.0,
         "Scale of the descents' tracking noise, relative to the orbital arcs' (1: the same; "
@@ -236,6 +244,13 @@ class DeepCampaignConfig(CampaignConfig):
                 f"{label('network_start')} must be one of {', '.join(NETWORK_STARTS)}, "
                 f"got {self.network_start!r}"
             )
+        if self.prior_placement not in PRIOR_PLACEMENTS:
+            raise InputError(
+                f"{label('prior_placement')} must be one of {', '.join(PRIOR_PLACEMENTS)}, "
+                f"got {self.prior_placement!r}"
+            )
+        if self.prior_placement != "centred" and self.prior != "shape":
+            raise InputError(f"{label('prior_placement')} needs {label('prior')} shape")
         if self.prior not in PRIORS:
             raise InputError(
                 f"{label('prior')} must be one of {', '.join(PRIORS)}, got {self.prior!r}"
@@ -251,6 +266,16 @@ class DeepCampaignConfig(CampaignConfig):
                 f"{label('deep_bins_rb')} must be two or more increasing edges in (0, 1], "
                 "e.g. 0.45,0.65,0.95"
             )
+
+
+def known_of(config: DeepCampaignConfig) -> dict:
+    """Every row's known-part settings: the shape prior when there is one, with its placement
+    when it is not the default (so the settings of the runs before the option stay)."""
+    if config.prior != "shape":
+        return {}
+    if config.prior_placement == "centred":
+        return {"prior": "shape"}
+    return {"prior": "shape", "prior_placement": config.prior_placement}
 
 
 def softening_of(config: DeepCampaignConfig) -> dict:
@@ -728,7 +753,7 @@ class DeepExperiment(Experiment):
             )
             lap("descents_simulate")
         arriving = [all_arcs.arcs_of(g) for g in groups]
-        known = {"prior": "shape"} if config.prior == "shape" else {}
+        known = known_of(config)
         best = network_best(
             config.hidden,
             config.lm_iterations,

@@ -78,6 +78,7 @@ from .deep import (
     DeepCampaignConfig,
     _bin_summary,
     campaign_descents,
+    known_of,
     softening_of,
 )
 
@@ -305,7 +306,7 @@ class DeepLadderExperiment(Experiment):
         arc_points = arcs.true_states[..., :3].reshape(-1, 3)
         descent_points = descents.true_states[..., :3].reshape(-1, 3)
         descent_points = descent_points[np.isfinite(descent_points).all(axis=1)]
-        known = {"prior": "shape"} if config.prior == "shape" else {}
+        known = known_of(config)
         rows = {
             "network": network_best(
                 config.hidden,

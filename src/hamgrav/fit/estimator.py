@@ -38,7 +38,14 @@ from ..bodies.shape_prior import DEFAULT_PRIOR_MASCONS, centred_shape_prior
 from ..core.arcs import Arcs
 from ..core.model import Model, evaluate_field
 from ..core.problem import ArcProblem, Regulariser
-from ..core.terms import GravityTerm, MasconTerm, NeuralPotential, PointMass, SphericalHarmonics
+from ..core.terms import (
+    GravityTerm,
+    MasconTerm,
+    NeuralPotential,
+    PointDipole,
+    PointMass,
+    SphericalHarmonics,
+)
 from ..errors import HamgravWarning, InputError
 from ..units import CanonicalUnits, momentum_to_velocity
 from .adam import Adam
@@ -459,6 +466,12 @@ class GravityEstimator:
         envelope_softening_rb: the softening r_c of the network's envelope (R_w^3 / (r^2 +
             r_c^2)^(3/2) for (R_w / r)^3; :class:`~hamgrav.core.terms.NeuralPotential`) [R_B,
             the body's Brillouin radius]; 0 (default): none.
+        prior_placement: where the shape prior sits: "centred" (default; the paper's: its
+            constant-density centre of mass moved to the frame's origin, so the known part
+            has no dipole, but the shape moves by the offset c between the two centres of
+            mass, 343 m on 67P with a head twice as dense) or "in-place" (the shape where it
+            is, plus the point dipole -c that takes the dipole out again: the same exterior
+            to first order, and the field near the surface of the shape itself).
         client: a ``dask.distributed`` Client: the fit's sums over arcs (costs, gradient,
             normal equations) run on its workers, which hold the arcs in chunks
             (:mod:`hamgrav.fit.distributed`); the numbers equal an in-process fit's to
@@ -501,6 +514,7 @@ class GravityEstimator:
         cv_rule: str | None = None,
         network_start: str = "random",
         envelope_softening_rb: float = 0.0,
+        prior_placement: str = "centred",
         client=None,
     ):
         self.term = term
@@ -532,6 +546,7 @@ class GravityEstimator:
         self.cv_rule = cv_rule
         self.network_start = network_start
         self.envelope_softening_rb = envelope_softening_rb
+        self.prior_placement = prior_placement
         self.client = client
 
     # ----------------------------------------------------------------- decisions, one place
@@ -594,6 +609,23 @@ class GravityEstimator:
         elif self.prior == "shape":
             mascons, report = centred_shape_prior(body, self.prior_mascons, seed=self.seed)
             known, prior_info = (MasconTerm(mascons, "shape prior"),), {"kind": "shape", **report}
+            if self.prior_placement == "in-place":
+                # the shape where it is: its constant-density centre of mass c off the frame's
+                # origin (the body's centre of mass), and the dipole -c that brings the known
+                # part's centre of mass back to the origin (no degree 1 left to learn)
+                offset = np.asarray(body.constant_density_centre_of_mass, dtype=float)
+                known = (
+                    MasconTerm(mascons.translated(offset), "shape prior"),
+                    PointDipole(tuple(-offset)),
+                )
+                prior_info |= {
+                    "placement": "in-place",
+                    "offset_m": (offset * body.units.length_m).tolist(),
+                }
+            elif self.prior_placement != "centred":
+                raise InputError(
+                    f"prior_placement must be 'centred' or 'in-place', got {self.prior_placement!r}"
+                )
         else:
             raise InputError(f"prior must be None or 'shape', got {self.prior!r}")
         return Model(known, learnable, tuple(self.per_trajectory)), prior_info
@@ -800,8 +832,8 @@ class GravityEstimator:
         for name, value in self.get_params().items():
             if name in skip:
                 continue
-            if name == "envelope_softening_rb" and not value:
-                continue  # none: the identity of the checkpoints written before it existed
+            if (name, value) in (("envelope_softening_rb", 0.0), ("prior_placement", "centred")):
+                continue  # the defaults: the identity of the checkpoints written before them
             if isinstance(value, Solver):
                 value = value.describe()
             elif isinstance(value, GravityTerm):

@@ -8,7 +8,9 @@ the shape model's frame):
 - ``known``: the known part of the potential, a list of terms: ``{"kind": "point-mass",
   "mu"}`` (mu / r: the central term) or ``{"kind": "mascons", "positions" (n, 3),
   "masses" (n,)}`` (sum m_i / |q - q_i|: a shape prior, whose masses sum to 1 and so
-  carries the central term);
+  carries the central term), and with a shape prior left in place ``{"kind": "point-dipole",
+  "moment" (3,)}`` ((d . q) / |q|^3: what brings the known part's centre of mass back to the
+  origin);
 - ``network``: the learned correction N(q) = scale * (envelope_radius / rho)^3 * NN(q),
   rho = sqrt(|q|^2 + envelope_softening^2) (files written before the softening existed have
   none: rho = |q|), NN
@@ -68,7 +70,8 @@ def network_document(fitted: FittedModel) -> dict:
             "units; N(q) = scale * (envelope_radius / rho)^3 * mean over members of NN(q), rho = "
             "sqrt(|q|^2 + envelope_softening^2); NN: "
             "x_{k+1} = tanh(W_k x_k + b_k) on hidden layers, linear output; weights[k] is "
-            "(out, in); point-mass: mu / |q|; mascons: sum m_i / |q - q_i|"
+            "(out, in); point-mass: mu / |q|; mascons: sum m_i / |q - q_i|; point-dipole: "
+            "(d . q) / |q|^3"
         ),
         "body": {
             "name": fitted.body_name,

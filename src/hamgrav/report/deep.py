@@ -91,6 +91,12 @@ def deep_readme(report: dict, paper: dict) -> list[str]:
         + (
             ", every model on the imaged shape at constant density (the known part, as "
             "mascons; the truth's interior may differ from it), fitting what it leaves"
+            + (
+                " (the shape left where it is, with the point dipole that takes the offset of "
+                "its centre of mass out of the known part: --prior-placement in-place)"
+                if cfg.get("prior_placement") == "in-place"
+                else ""
+            )
             if cfg.get("prior") == "shape"
             else ""
         )
