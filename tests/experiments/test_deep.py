@@ -170,3 +170,20 @@ def test_descent_noise_scales_the_descents_noise_only(synthetic_truth):
     noise = nominal.states - nominal.true_states
     assert np.abs(noise[..., :3]).max() > 0
     np.testing.assert_allclose(half.states - half.true_states, 0.5 * noise, atol=1e-15)
+
+
+def test_the_prior_alone_is_scored_where_the_rows_place_it(synthetic_truth, small_arcs):
+    """The deep experiment scores the same prior its rows are fitted on: in place or centred
+    (the synthetic truth's head is denser, so the two differ)."""
+    from types import SimpleNamespace
+
+    from hamgrav.experiments.common import sets_for
+    from hamgrav.experiments.deep import _prior_alone
+
+    shells = sets_for(synthetic_truth, (1.2,), (), 0)
+    ctx = SimpleNamespace(seed=0)
+    config = DeepExperimentConfig(body="synthetic", prior="shape", altitude_m=30.0)
+    centred = _prior_alone(small_arcs, synthetic_truth, shells, config, ctx)["shape"]
+    moved = replace(config, prior_placement="in-place")
+    in_place = _prior_alone(small_arcs, synthetic_truth, shells, moved, ctx)["shape"]
+    assert in_place["exterior"] != centred["exterior"] and in_place["deep"] != centred["deep"]

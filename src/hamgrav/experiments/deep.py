@@ -488,7 +488,7 @@ def _prior_alone(arcs: Arcs, truth: Truth, shells: dict, config: DeepCampaignCon
     correction fitted ({"shape": {exterior, deep, deepest_bin, worst_bin, and each bin's
     error}}): the floor the models start from."""
     model, _ = row_estimator(
-        {"term": "none", "prior": "shape"}, seed=ctx.seed, body=truth.body
+        {"term": "none", **known_of(config)}, seed=ctx.seed, body=truth.body
     ).build_model(arcs)
     ev = deep_bin_errors(
         {"shape": (model, np.zeros(0))}, truth, config.altitude_m, config.deep_bins_rb, ctx.seed
