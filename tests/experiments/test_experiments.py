@@ -670,9 +670,11 @@ def test_deep_tiny_on_the_shape_prior(tmp_path):
     assert result.exit_code == 0, result.output
     data = json.loads((out / "results.json").read_text())
     assert data["config"]["prior_placement"] == "in-place"
-    # a uniform truth: the centres of mass agree, so the placement barely moves the prior
+    # a uniform truth: the centres of mass nearly agree, and the prior in place (with its
+    # dipole) is as good a known part on the shells (the scoring of the placed prior itself:
+    # tests/experiments/test_deep.py)
     in_place = data["repetitions"][0]["prior_alone"]["shape"]
-    assert in_place["exterior"] == pytest.approx(alone["exterior"], rel=0.05)
+    assert in_place["exterior"] < 0.01 and in_place["deep"] < 0.1
     assert "the shape left where it is, with the point dipole" in (out / "README.md").read_text()
 
 
