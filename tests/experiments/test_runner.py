@@ -229,6 +229,26 @@ def test_runs_on_other_seeds_merge_into_the_run_of_all_seeds(tmp_path):
     assert merged["aggregate"] == whole["aggregate"]
     readme = (tmp_path / "m" / "README.md").read_text()
     assert "- seeds 3-3: `" + cmd.format(3, 1, "y") + "`" in readme
+    # folders outside the working directory are named alone, in the commands too: a path of
+    # this machine means nothing where the results are read
+    assert [r["folder"] for r in merged["merged_from"]] == ["s4", "s3"]
+    run_experiment(
+        "descent", TINY, seed=5, output=tmp_path / "s5", command=cmd.format(5, 1, tmp_path / "s5")
+    )
+    result = runner.invoke(
+        app,
+        [
+            "experiment",
+            "merge",
+            str(tmp_path / "s4"),
+            str(tmp_path / "s5"),
+            "-o",
+            str(tmp_path / "m2"),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    part = json.loads((tmp_path / "m2" / "results.json").read_text())["merged_from"][1]
+    assert part["command"] == cmd.format(5, 1, "s5") and str(tmp_path) not in str(part)
     assert (tmp_path / "m" / "touchdown.png").read_bytes() == (
         tmp_path / "s3" / "touchdown.png"
     ).read_bytes()

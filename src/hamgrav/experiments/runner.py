@@ -320,6 +320,19 @@ def read_report(folder: str | Path) -> dict:
     return report
 
 
+def _portable(folder: str | Path) -> str:
+    """How a merged report names a folder it was merged from: as given when relative, else
+    relative to the working directory, else by its name alone (a scratch folder elsewhere on
+    this machine: its path means nothing where the report is read)."""
+    path = Path(folder)
+    if not path.is_absolute():
+        return str(path)
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return path.name
+
+
 def merge_reports(folders: list[str | Path], output: str | Path) -> Path:
     """Write into ``output`` one results folder of the repetitions of ``folders``: runs of
     one experiment with the same config (and hamgrav version) on other seeds, e.g. seeds 0-3
@@ -371,7 +384,11 @@ def merge_reports(folders: list[str | Path], output: str | Path) -> Path:
         "aggregate": experiment.aggregate(repetitions),
         "figures": reports[lowest].get("figures", []),
         "merged_from": [
-            {"folder": str(f), "command": r["command"], "seeds": r["seeds"]}
+            {
+                "folder": _portable(f),
+                "command": re.sub(r"-o (\S+)", lambda m: f"-o {_portable(m[1])}", r["command"]),
+                "seeds": r["seeds"],
+            }
             for f, r in zip(folders, reports, strict=True)
         ],
     }
