@@ -178,3 +178,26 @@ def test_void_gives_every_mascon_asked_for(synthetic):
     assert len(truth.mascons) == left + 200
     assert truth.parameters["volume_samples"] > samples
     assert truth.mascons.masses.sum() == pytest.approx(1.0, rel=1e-12)
+
+
+def test_the_shape_prior_is_fitted_inside_the_brillouin_sphere_too(synthetic):
+    """The close points of the prior's fit carry its accuracy into the close-proximity space
+    (checked against the exact polyhedron 0.05 R_B above the surface, inside R_B, where an
+    exterior-only fit is free to err)."""
+    from hamgrav.bodies.evaluation import deep_set
+    from hamgrav.bodies.shape_prior import fit_shape_prior
+
+    centred = synthetic.recentred(synthetic.constant_density_centre_of_mass)
+    deep = deep_set(centred, 0.05 * centred.brillouin_radius_m, 0)
+    assert len(deep) > 50
+    v_poly = polyhedron_potential(centred, deep)
+    central = 1.0 / np.linalg.norm(deep, axis=1)
+    errors = {}
+    for n_close in (0, None):
+        prior, report = fit_shape_prior(synthetic, 60, n_close_points=n_close, samples=20_000)
+        prior = prior.translated(-synthetic.constant_density_centre_of_mass)
+        v_prior = mascon_potential(prior, deep)
+        errors[n_close] = relative_field_error(v_prior - central, v_poly - central)
+        assert report["perturbing_error_r1.05"] < 0.01
+    assert errors[None] < 0.5 * errors[0], errors
+    assert report["perturbing_error_close"] < 2 * errors[None]

@@ -1,8 +1,12 @@
 """The imaged shape at constant density, compressed to a few mascons (a known term).
 
 Positions: k-means centroids of the shape's volume. Masses: non-negative least squares against
-the exact constant-density polyhedron potential sampled between 1.02 and 1.8 R_B (relative
-residuals), with the total mass held at 1 by a heavily weighted extra row. The fit is made in
+the exact constant-density polyhedron potential (relative residuals), sampled between 1.02 and
+1.8 R_B and as densely in the close-proximity space between the surface and 1.02 R_B (down into
+the concavities, inside the Brillouin sphere), with the total mass held at 1 by a heavily
+weighted extra row. Without the close points the compression error 300 m above 67P's neck is
+5-10 % of the perturbing potential (it is 0.1-0.2 % at 1.05 R_B); with them it is about 2 %,
+for a few tenths of a percent more at 1.05 R_B. The fit is made in
 the frame of the constant-density centre of mass, so the prior's origin is its own centre of
 mass (exactly, after a final sub-millimetre shift), as the paper's residual architecture needs.
 """
@@ -18,6 +22,7 @@ from ..core.fields import relative_field_error, shell_points
 from ..core.mascons import MasconSet, mascon_potential
 from ..errors import InputError
 from .catalogue import Body
+from .evaluation import exterior_points
 from .interiors import kmeans_labels, volume_samples
 from .polyhedron import polyhedron_potential
 
@@ -33,16 +38,23 @@ def fit_shape_prior(
     seed: int = 0,
     n_fit_points: int | None = None,
     radii_rb: tuple[float, float] = (1.02, 1.8),
+    n_close_points: int | None = None,
     samples: int = 60_000,
 ) -> tuple[MasconSet, dict]:
     """Fit the shape prior of ``body`` (canonical units).
 
-    Returns the mascons, expressed in ``body``'s frame (their centre of mass at the shape's
-    constant-density centre of mass), and a report of how well they reproduce the polyhedron.
-    For the residual architecture, use :func:`centred_shape_prior`.
+    ``n_fit_points`` points (default ``max(2000, 4 n_mascons)``) at radii uniform in
+    ``radii_rb`` [R_B] and ``n_close_points`` (default as many; 0 for none) outside the mesh
+    within ``radii_rb[0]`` R_B. Returns the mascons, expressed in ``body``'s frame (their
+    centre of mass at the shape's constant-density centre of mass), and a report of how well
+    they reproduce the polyhedron's perturbing potential (relative errors on shells at 1.05,
+    1.2 and 1.5 R_B, and ``perturbing_error_close`` on other close points). For the residual
+    architecture, use :func:`centred_shape_prior`.
     """
     if n_mascons < 1:
         raise InputError("the shape prior needs at least one mascon")
+    if n_close_points is not None and n_close_points < 0:
+        raise InputError("the shape prior's close points cannot be negative in number")
     com = body.constant_density_centre_of_mass
     centred = body.recentred(com)
     points = volume_samples(centred, samples)
@@ -56,12 +68,16 @@ def fit_shape_prior(
     r_b = centred.brillouin_radius
     radii = rng.uniform(*radii_rb, n_fit) * r_b
     fit_points = shell_points(1.0, n_fit, seed) * radii[:, None]
+    n_close = n_fit if n_close_points is None else n_close_points
+    if n_close:
+        close = exterior_points(centred, radii_rb[0] * r_b, n_close, seed=seed + 7)
+        fit_points = np.concatenate([fit_points, close])
     target = polyhedron_potential(centred, fit_points)
     design = 1.0 / np.linalg.norm(fit_points[:, None, :] - centroids[None], axis=2)
     design /= target[:, None]  # relative residuals
-    weight = 1e3 * np.sqrt(n_fit)
+    weight = 1e3 * np.sqrt(len(fit_points))
     a = np.vstack([design, weight * np.ones((1, len(centroids)))])
-    b = np.concatenate([np.ones(n_fit), [weight]])
+    b = np.concatenate([np.ones(len(fit_points)), [weight]])
     masses, _ = nnls(a, b, maxiter=50 * len(centroids))
     keep = masses > 0
     masses = masses[keep] / masses[keep].sum()
@@ -69,12 +85,14 @@ def fit_shape_prior(
     prior = prior.translated(-prior.centre_of_mass)
 
     report = {"n_mascons": int(keep.sum()), "n_requested": n_mascons, "seed": seed}
-    for s in (1.05, 1.2, 1.5):
-        pts = shell_points(s * r_b, 400, seed + 1)
+    checks = {f"r{s}": shell_points(s * r_b, 400, seed + 1) for s in (1.05, 1.2, 1.5)}
+    checks["close"] = exterior_points(centred, radii_rb[0] * r_b, 400, seed=seed + 11)
+    for name, pts in checks.items():
         v_poly = polyhedron_potential(centred, pts)
         v_prior = mascon_potential(prior, pts)
         central = 1.0 / np.linalg.norm(pts, axis=1)
-        report[f"perturbing_error_r{s}"] = relative_field_error(v_prior - central, v_poly - central)
+        error = relative_field_error(v_prior - central, v_poly - central)
+        report[f"perturbing_error_{name}"] = error
     return prior.translated(com), report
 
 
