@@ -199,5 +199,7 @@ def test_the_shape_prior_is_fitted_inside_the_brillouin_sphere_too(synthetic):
         v_prior = mascon_potential(prior, deep)
         errors[n_close] = relative_field_error(v_prior - central, v_poly - central)
         assert report["perturbing_error_r1.05"] < 0.01
+        # the far field pays for the close points, but stays a small fraction of a percent
+        assert report["perturbing_error_r1.5"] < 0.003
     assert errors[None] < 0.5 * errors[0], errors
     assert report["perturbing_error_close"] < 2 * errors[None]

@@ -88,7 +88,10 @@ def test_degree_two_harmonics_match_the_closed_form():
 
 @pytest.fixture(scope="module")
 def prior_fitted(synthetic):
-    mascons, report = centred_shape_prior(synthetic, 60, seed=0)
+    # fitted in the far field only, where 60 mascons match the polyhedron to 3e-4 at 1.5 R_B:
+    # these tests check the SI plumbing of the known part (the default prior trades some of
+    # that far-field accuracy for the close-proximity space; test_interiors checks the trade)
+    mascons, report = centred_shape_prior(synthetic, 60, seed=0, n_close_points=0)
     fitted = FittedModel(
         Model((MasconTerm(mascons, "shape prior"),)),
         np.zeros(0),

@@ -50,6 +50,11 @@ def fit_shape_prior(
     they reproduce the polyhedron's perturbing potential (relative errors on shells at 1.05,
     1.2 and 1.5 R_B, and ``perturbing_error_close`` on other close points). For the residual
     architecture, use :func:`centred_shape_prior`.
+
+    The close points trade far-field accuracy for the close-proximity space: on 67P with 200
+    mascons the error on close points (outside the mesh, inside 1.02 R_B) falls from 2 % to
+    0.16 % of the perturbing potential while the error at 1.5 R_B rises from 0.008 % to
+    0.07 %, still far below what a learned correction resolves there.
     """
     if n_mascons < 1:
         raise InputError("the shape prior needs at least one mascon")
@@ -102,20 +107,24 @@ _CENTRED_PRIORS: dict[tuple, tuple[MasconSet, dict]] = {}
 
 
 def centred_shape_prior(
-    body: Body, n_mascons: int = DEFAULT_PRIOR_MASCONS, *, seed: int = 0
+    body: Body,
+    n_mascons: int = DEFAULT_PRIOR_MASCONS,
+    *,
+    seed: int = 0,
+    n_close_points: int | None = None,
 ) -> tuple[MasconSet, dict]:
     """The shape prior centred on its own centre of mass (the origin of the arcs' frame, as
     the paper's residual architecture needs), and its report (see :func:`fit_shape_prior`);
-    fitted once per body, frame, mascon count and seed in a process."""
+    fitted once per body, frame, mascon count, seed and close-point count in a process."""
     mesh = body.mesh_m
     geometry = hashlib.sha1(
         np.ascontiguousarray(mesh.vertices, dtype=float).tobytes()
         + np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes()
     ).hexdigest()
     key = (body.name, body.gm_m3_s2, body.spin_period_s, tuple(body.origin_m), geometry)
-    key += (int(n_mascons), int(seed))
+    key += (int(n_mascons), int(seed), n_close_points)
     if key not in _CENTRED_PRIORS:
-        mascons, report = fit_shape_prior(body, n_mascons, seed=seed)
+        mascons, report = fit_shape_prior(body, n_mascons, seed=seed, n_close_points=n_close_points)
         _CENTRED_PRIORS[key] = (mascons.translated(-mascons.centre_of_mass), report)
     mascons, report = _CENTRED_PRIORS[key]
     return mascons, dict(report)
