@@ -12,7 +12,7 @@ process share the GIL between heyoka's calls, processes do not), and ``--copies 
 the 112 arcs K times.
 
     python bench/gradient.py [--hidden 24,24 16,16] [--tol 1e-10] [--adjoint-tol 1e-8] [--repeat 3]
-                             [--workers 2] [--copies 4] [--json]
+                             [--workers 2] [--copies 4] [--json] [--export-peer arcs.npz]
 """
 
 from __future__ import annotations
@@ -100,6 +100,12 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="one JSON object per network")
     parser.add_argument("--workers", type=int, default=0, help="LocalCluster worker processes")
     parser.add_argument("--copies", type=int, default=1, help="the 112 arcs, repeated")
+    parser.add_argument(
+        "--export-peer",
+        metavar="NPZ",
+        help="also write the arcs' initial states and sample times (canonical) for "
+        "bench/peer_gradient.py, which times the JAX peer on the same arcs",
+    )
     args = parser.parse_args()
     if args.workers and args.adjoint_tol != propagation.ADJOINT_TOLERANCE:
         parser.error("--adjoint-tol applies in this process only, not with --workers")
@@ -109,6 +115,8 @@ def main() -> None:
         truth, orbit_grid(16, (1.2, 2.0), (10.0, 80.0)), TrackingConfig(arcs_per_orbit=7), seed=0
     )
     arcs = arcs.subset(np.tile(np.arange(arcs.n_arcs), args.copies))
+    if args.export_peer:
+        np.savez(args.export_peer, states0=arcs.states[:, 0], times=arcs.times)
     with dask_client(args.workers) if args.workers else contextlib.nullcontext() as client:
         rows = [_network_row(arcs, hidden, args, client) for hidden in args.hidden]
     if args.json:

@@ -226,10 +226,19 @@ class _NaNForArc:
         return values
 
 
-def test_an_arc_whose_costate_pass_fails_is_reported(small_arcs, network, monkeypatch):
+@pytest.mark.parametrize("reduction", ["none", "not finite"])
+def test_an_arc_whose_costate_pass_fails_is_reported(small_arcs, network, monkeypatch, reduction):
+    """heyoka's rates not finite at one arc's nodes: that arc, and only it, fails. The
+    network's own reduction over a block's nodes is either absent or not finite (then the
+    block falls back to the rates node by node, which find the arc)."""
     from hamgrav.core import model as model_module
 
     model, theta = network
+    term = type(model.learnable)
+    if reduction == "none":
+        monkeypatch.setattr(term, "parameter_rate_sum", lambda self, *a: None)
+    else:
+        monkeypatch.setattr(term, "parameter_rate_sum", lambda self, p, *a: np.full(len(p), np.nan))
     rates = model_module.parameter_rate_function(model)
     n_nodes = propagation._arc_nodes(small_arcs.times[:1], small_arcs.states[:1])[2][0]
     monkeypatch.setattr(

@@ -5,6 +5,7 @@ import heyoka as hy
 import numpy as np
 import pytest
 
+from hamgrav.core import propagation
 from hamgrav.core.hamiltonian import STATE_VARIABLES, transition_equations
 from hamgrav.core.mascons import mascon_acceleration
 from hamgrav.core.model import (
@@ -139,7 +140,7 @@ def test_transition_equations_equal_heyokas_variational_system(synthetic_truth, 
     else:
         term = SphericalHarmonics(4, synthetic_truth.body.brillouin_radius)
     model = Model((PointMass(),), term, (srp,))
-    ours = transition_equations(model.hamiltonian())
+    ours = transition_equations(*model.potential_derivatives())
     reference = hy.var_ode_sys(model.system(), hy.var_args.vars, order=1).sys
     assert len(ours) == len(reference) == 42
     n = 50
@@ -155,3 +156,82 @@ def test_transition_equations_equal_heyokas_variational_system(synthetic_truth, 
     np.testing.assert_allclose(
         values[0], values[1], rtol=1e-12, atol=1e-12 * np.abs(values[1]).max()
     )
+
+
+def _oscillators(width: int, tol: float = 1e-10):
+    """A batch of (x, v, x^2 blowing up from x = 1 at t = 1): a system with a lane that can
+    fail, and steps short enough that a long grid takes several."""
+    x, v, w = hy.make_vars("x", "v", "w")
+    state = np.zeros((3, width))
+    state[0], state[1], state[2] = 1.0, 0.0, 0.1
+    ta = hy.taylor_adaptive_batch([(x, v), (v, -x), (w, w * w)], state, tol=tol)
+    return ta, state
+
+
+def _lanes_and_grid(grid: np.ndarray, start_w: np.ndarray, max_steps=None):
+    """_propagate_lanes and heyoka's propagate_grid batch by batch, from the same starts."""
+    width = int(hy.recommended_simd_size())
+    ta, state = _oscillators(width)
+    n_lanes = grid.shape[0]
+
+    def prepare(b):
+        lanes = slice(b * width, (b + 1) * width)
+        ta.set_time(np.ascontiguousarray(grid[lanes, 0]))
+        ta.state[:] = state
+        ta.state[0] = np.cos(grid[lanes, 0])
+        ta.state[1] = -np.sin(grid[lanes, 0])
+        ta.state[2] = start_w[lanes]
+
+    ours, stopped = propagation._propagate_lanes(ta, grid, prepare, max_steps)
+    reference = np.empty_like(ours)
+    for b in range(n_lanes // width):
+        prepare(b)
+        lanes = slice(b * width, (b + 1) * width)
+        states, _ = propagation._propagate_grid(ta, np.ascontiguousarray(grid[lanes].T), None)
+        reference[lanes] = states.transpose(2, 0, 1)
+    return ours, stopped, reference
+
+
+def test_lanes_in_one_step_equal_heyokas_dense_output(rng):
+    """Arcs that each end in one Taylor step (three batches): the polynomials' values at
+    the grid equal heyoka's propagate_grid to rounding, the first point is the start."""
+    width = int(hy.recommended_simd_size())
+    n = 3 * width
+    start = rng.uniform(0.0, 3.0, n)
+    grid = start[:, None] + np.sort(rng.uniform(0.0, 0.05, (n, 30)), axis=1)
+    grid[:, 0] = start
+    ours, stopped, reference = _lanes_and_grid(grid, np.full(n, 0.1))
+    assert not stopped.any()
+    np.testing.assert_allclose(ours, reference, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(ours[:, -1, 0], np.cos(grid[:, -1]), rtol=1e-9)
+
+
+def test_lanes_over_several_steps_or_failing_go_through_heyokas_grid(rng):
+    """A batch whose arcs take several steps, and one with a lane that blows up, go through
+    propagate_grid (the same numbers); the batches around them keep theirs; a start-only
+    grid is the initial state; a step cap stops the long batch and leaves it NaN."""
+    width = int(hy.recommended_simd_size())
+    n = 3 * width
+    start = rng.uniform(0.0, 1.0, n)
+    span = np.full(n, 0.05)
+    span[width : 2 * width] = 6.0  # the second batch: several steps
+    grid = start[:, None] + span[:, None] * np.linspace(0.0, 1.0, 25)
+    w0 = np.full(n, 0.1)
+    w0[-1] = 40.0  # w = w0 / (1 - w0 t) blows up at t = 0.025 into the last lane's arc
+    ours, stopped, reference = _lanes_and_grid(grid, w0)
+    assert not stopped.any()
+    good = np.ones(n, bool)
+    good[-1] = False
+    np.testing.assert_allclose(ours[good], reference[good], rtol=1e-13, atol=1e-14)
+    assert not np.all(np.isfinite(ours[-1]))
+    np.testing.assert_allclose(
+        ours[width : 2 * width, -1, 0], np.cos(grid[width : 2 * width, -1]), rtol=1e-8
+    )
+
+    single = grid[:, :1]
+    ours, stopped, _ = _lanes_and_grid(single, w0)
+    np.testing.assert_array_equal(ours[:, 0, 0], np.cos(single[:, 0]))
+
+    ours, stopped, _ = _lanes_and_grid(grid, np.full(n, 0.1), max_steps=1)
+    np.testing.assert_array_equal(stopped, span > 1.0)
+    assert np.isnan(ours[stopped]).all() and np.isfinite(ours[~stopped]).all()

@@ -3,14 +3,16 @@ import numpy as np
 import pytest
 
 from hamgrav.core.fields import perturbing_potential, relative_field_error, shell_points
+from hamgrav.core.hamiltonian import POSITION
 from hamgrav.core.mascons import MasconSet
-from hamgrav.core.model import Model, evaluate_field
+from hamgrav.core.model import Model, evaluate_field, parameter_rate_function
 from hamgrav.core.terms import (
     NeuralPotential,
     PointMass,
     SolarRadiationPressure,
     SphericalHarmonics,
     _normalised_legendre,
+    position_derivatives,
     sh_coefficients_of_mascons,
     sh_index,
 )
@@ -327,3 +329,63 @@ def test_point_dipole_is_the_first_order_of_a_displaced_mass():
     assert term_from_description(dipole.describe()) == dipole and dipole.n_params == 0
     with pytest.raises(ValueError, match="three finite numbers"):
         PointDipole((1.0, np.nan, 0.0))
+
+
+x, y, z = POSITION
+
+NETWORKS = [
+    NeuralPotential((5, 4)),
+    NeuralPotential((6, 5, 3), members=2, softening=0.3),
+    NeuralPotential((7,), scale=0.2, envelope_radius=0.8),
+]
+
+
+@pytest.mark.parametrize("term", NETWORKS, ids=lambda t: t.key())
+def test_network_layers_are_ffnns_own_expressions(term):
+    """The layers the network's derivatives are formed from are heyoka's ffnn's, expression
+    for expression: a Taylor decomposition holding both then shares them (were ffnn to build
+    its layers otherwise, the costate pass would silently do the network's work twice)."""
+    out, activations, weights = term.member_layers_expressions(0)
+    assert out == term.member().network(0)
+    assert [len(s) for s in activations] == list(term.hidden)
+    assert len(weights) == len(term.hidden) + 1
+
+
+@pytest.mark.parametrize("term", NETWORKS, ids=lambda t: t.key())
+def test_network_derivatives_equal_heyokas_diff_tensors(term, rng):
+    """The network's gradient and Hessian in the position (forward tangents through the
+    layers, the envelope by the product rule) equal heyoka's diff_tensors of its potential,
+    at random points inside and outside the unit sphere and random parameters."""
+    ours = term.derivatives(3)  # at an offset, as a model with other parameters has it
+    reference = position_derivatives(term.potential(3))
+    n = 40
+    points = rng.normal(size=(3, n)) * rng.uniform(0.3, 2.5, n)
+    pars = np.zeros((3 + term.n_params, n))
+    pars[3:] = term.initial_params(1)[:, None] + 0.3 * rng.normal(size=(term.n_params, n))
+    values = []
+    for gradient, hessian in (ours, reference):
+        f = hy.cfunc([*gradient, *hessian], vars=[x, y, z])
+        values.append(f(points, pars=pars))
+    assert np.all(np.isfinite(values[1])) and np.abs(values[1]).max() > 1e-3
+    np.testing.assert_allclose(values[0], values[1], rtol=1e-11, atol=1e-13)
+
+
+@pytest.mark.parametrize("term", NETWORKS, ids=lambda t: t.key())
+def test_network_parameter_rate_sum_equals_heyokas_rates(term, rng):
+    """The network's own reduction of the adjoint's parameter rates over many nodes equals
+    minus the sum of heyoka's rates cfunc (the generic path) over the same nodes."""
+    model = Model((PointMass(),), term)
+    theta = term.initial_params(2) + 0.2 * rng.normal(size=term.n_params)
+    n = 60
+    states = rng.normal(size=(n, 6))
+    states[:, :3] *= rng.uniform(0.5, 2.0, (n, 1)) / np.linalg.norm(states[:, :3], axis=1)[:, None]
+    lam = rng.normal(size=(n, 6))
+    rates = parameter_rate_function(model)
+    values = rates(
+        np.ascontiguousarray(np.concatenate([states, lam], axis=1).T),
+        pars=np.repeat(theta[: rates.nparams, None], n, axis=1),
+    )
+    reference = -values.sum(axis=1)
+    got = term.parameter_rate_sum(theta, states[:, :3], lam[:, 3:])
+    assert got.shape == (term.n_params,)
+    np.testing.assert_allclose(got, reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())

@@ -18,6 +18,7 @@ __all__ = [
     "POSITION",
     "rotating_hamiltonian",
     "equations_of_motion",
+    "HESSIAN_ENTRIES",
     "transition_equations",
 ]
 
@@ -41,34 +42,46 @@ def equations_of_motion(hamiltonian: hy.expression) -> list[tuple[hy.expression,
     return hy.hamiltonian(hamiltonian, [x, y, z], [px, py, pz])
 
 
-def transition_equations(hamiltonian: hy.expression) -> list[tuple[hy.expression, hy.expression]]:
-    """Hamilton's equations followed by those of the state transition matrix Phi_ij =
-    d x_i / d x_j(t0) (36 variables, row-major): Phi' = J Phi with
-    J = [[H_pq, H_pp], [-H_qq, -H_qp]], the second derivatives of the Hamiltonian.
+#: The six entries of a symmetric 3 x 3 Hessian in the order terms give them: (xx, xy, xz,
+#: yy, yz, zz), as (row, column) pairs.
+HESSIAN_ENTRIES = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
-    The same system as heyoka's ``var_ode_sys(..., var_args.vars, order=1)``, but each
-    second derivative of H is formed once (the Hessian is symmetric, where differentiating
-    the equations of motion forms H_xy and H_yx apart) and the constant entries of J fold
-    away: for a network potential this halves the Taylor decomposition and nearly halves
-    the integrator's cost."""
-    tensors = hy.diff_tensors([hamiltonian], list(STATE_VARIABLES), diff_order=2)
 
-    def second(i: int, j: int) -> hy.expression:
-        index = [0] * 7
-        index[1 + i] += 1
-        index[1 + j] += 1
-        return tensors[index]
+def transition_equations(
+    gradient: Sequence[hy.expression], hessian: Sequence[hy.expression]
+) -> list[tuple[hy.expression, hy.expression]]:
+    """Hamilton's equations of H = |p|^2/2 + y p_x - x p_y - V followed by those of the state
+    transition matrix Phi_ij = d x_i / d x_j(t0) (36 variables, row-major), from the gradient
+    of V (3 expressions: d/dx, d/dy, d/dz) and its Hessian (6: :data:`HESSIAN_ENTRIES`).
 
-    def jacobian(a: int, b: int) -> hy.expression:  # d f_a / d x_b, f = (H_p, -H_q)
-        return second(a + 3, b) if a < 3 else -second(a - 3, b)
-
-    zeros = (hy.expression(0.0), hy.expression(-0.0))
+    The Jacobian of the flow is constant apart from d p' / d q = the Hessian of V (the
+    rotation's terms are +-1, d q' / d p the identity), so Phi' = J Phi takes 3 to 6
+    products per entry and each second derivative of V is formed once (heyoka's
+    ``var_ode_sys(..., var_args.vars, order=1)`` forms H_xy and H_yx apart). Terms give V's
+    derivatives themselves (:meth:`hamgrav.core.terms.GravityTerm.derivatives`): a network
+    forms its Hessian from the same layers as its gradient, which the Taylor decomposition
+    then shares."""
+    if len(gradient) != 3 or len(hessian) != 6:
+        raise ValueError(
+            f"the gradient has 3 entries and the Hessian 6, got {len(gradient)} and {len(hessian)}"
+        )
+    second = {}
+    for entry, (i, j) in zip(hessian, HESSIAN_ENTRIES, strict=True):
+        second[i, j] = second[j, i] = entry
+    # q' = p + (y, -x, 0), p' = (p_y, -p_x, 0) + grad V: the same flow as equations_of_motion
+    rates = [px + y, py - x, pz, py + gradient[0], -px + gradient[1], gradient[2]]
+    turn = {(0, 1): 1, (1, 0): -1}  # d (y, -x, 0) / d (x, y, z), likewise in p
     phi = [[hy.expression(f"phi_{i}{j}") for j in range(6)] for i in range(6)]
-    system = list(equations_of_motion(hamiltonian))
+    system = list(zip(STATE_VARIABLES, rates, strict=True))
     for i in range(6):
-        row = [(k, jacobian(i, k)) for k in range(6)]
-        row = [(k, e) for k, e in row if not any(e == zero for zero in zeros)]
         for j in range(6):
-            rate = hy.sum([e * phi[k][j] for k, e in row]) if row else zeros[0]
-            system.append((phi[i][j], rate))
+            if i < 3:  # d q_i' / d x_k: the rotation in q, the identity in p
+                parts = [phi[i + 3][j]]
+            else:  # d p_i' / d x_k: the Hessian in q, the rotation in p
+                parts = [second[i - 3, k] * phi[k][j] for k in range(3)]
+            for (a, k), sign in turn.items():
+                if a == i % 3:
+                    near = phi[k + 3 * (i >= 3)][j]
+                    parts.append(near if sign > 0 else -near)
+            system.append((phi[i][j], hy.sum(parts)))
     return system

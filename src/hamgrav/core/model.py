@@ -131,6 +131,26 @@ class Model:
                 offset += term.trajectory_params
         return out
 
+    def potential_derivatives(self) -> tuple[list[hy.expression], list[hy.expression]]:
+        """The gradient (3) and the Hessian's six entries
+        (:data:`hamgrav.core.hamiltonian.HESSIAN_ENTRIES`) of the whole potential (every
+        term, as :meth:`potentials` "all"), each term's as it forms them
+        (:meth:`hamgrav.core.terms.GravityTerm.derivatives`)."""
+        parts = [t.derivatives() for t in self.known]
+        if self.learnable is not None:
+            parts.append(self.learnable.derivatives(0))
+        offset = self.n_learn
+        for term in self.per_trajectory:
+            parts.append(term.derivatives(offset))
+            offset += term.trajectory_params
+        if not parts:
+            zero = hy.expression(0.0)
+            return [zero] * 3, [zero] * 6
+        return (
+            [hy.sum([g[k] for g, _ in parts]) for k in range(3)],
+            [hy.sum([h[k] for _, h in parts]) for k in range(6)],
+        )
+
     def hamiltonian(self) -> hy.expression:
         """The rotating-frame Hamiltonian of this model."""
         return rotating_hamiltonian(self.potentials())
@@ -220,7 +240,7 @@ def compiled_integrators(
         n_par = model.n_system_params
         n_state = 6
         if variational and wrt == "state":
-            sys = transition_equations(model.hamiltonian())
+            sys = transition_equations(*model.potential_derivatives())
             n_state = 42
         elif variational:
             if n_par == 0:

@@ -58,6 +58,70 @@ def _propagate_grid(ta, grid: np.ndarray, max_steps: int | None) -> tuple[np.nda
     return res[-1], exceeded
 
 
+_STEP_LIMIT = hy.taylor_outcome.step_limit
+_TIME_LIMIT = hy.taylor_outcome.time_limit
+
+
+def _propagate_lanes(
+    ta, grid: np.ndarray, prepare, max_steps: int | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The states (lanes, m, n_state) of a batch integrator's lanes at their ``grid``
+    (lanes, m), increasing from each lane's start, over ``lanes / batch_size`` batches:
+    ``prepare(b)`` sets the integrator's time, state and parameters for batch b (lanes
+    b * batch_size on). Also returns whether ``max_steps`` Taylor steps (None: no cap)
+    stopped each lane's batch (its states are then NaN), as :func:`_propagate_grid`.
+
+    A batch whose lanes each reach the end of their grid in one Taylor step (the usual
+    costate pass: its tolerance is loose and its arcs short) is propagated by heyoka's
+    ``propagate_until`` keeping that step's Taylor coefficients, and the grid's points of
+    all such batches are then the polynomials' values, one matrix product of the powers of
+    t - t_start by the coefficients: ``propagate_grid``'s dense output to rounding, which
+    it evaluates point by point, in as long as the step itself for 42 variables at 50
+    points. A batch that takes more steps, or fails, goes again through
+    :func:`_propagate_grid`. (``step`` would give every step's coefficients, but it holds
+    the GIL; ``propagate_until`` releases it, so threads propagate side by side.)"""
+    n_lanes, m = grid.shape
+    width, order, dim = ta.batch_size, ta.order, ta.dim
+    cap = 0 if max_steps is None else int(max_steps)
+    coefficients = np.zeros((dim, order + 1, n_lanes))  # zero where heyoka's grid gives them
+    start = np.empty(n_lanes)
+    initial = np.empty((n_lanes, dim))
+    stopped = np.zeros(n_lanes, bool)
+    unmoved = np.zeros(n_lanes, bool)  # lanes whose grid is their start alone: no step
+    by_grid = {}
+    for b in range(n_lanes // width):
+        lanes = slice(b * width, (b + 1) * width)
+        prepare(b)
+        start[lanes] = ta.time
+        initial[lanes] = ta.state.T
+        ta.propagate_until(np.ascontiguousarray(grid[lanes, -1]), max_steps=cap, write_tc=True)
+        kinds, _, _, steps = zip(*ta.propagate_res, strict=True)
+        if _STEP_LIMIT in kinds:
+            stopped[lanes] = True
+            continue
+        if max(steps) <= 1 and kinds.count(_TIME_LIMIT) == width:
+            coefficients[..., lanes] = ta.tc
+            if min(steps) == 0:
+                unmoved[lanes] = np.asarray(steps) == 0
+        else:  # several steps, or a failure: heyoka's dense output over all of them
+            prepare(b)
+            by_grid[b], stopped[lanes] = _propagate_grid(
+                ta, np.ascontiguousarray(grid[lanes].T), max_steps
+            )
+    delta = grid - start[:, None]
+    powers = np.empty((n_lanes, m, order + 1))
+    powers[..., 0] = 1.0
+    powers[..., 1] = delta
+    for k in range(2, order + 1):
+        np.multiply(powers[..., k - 1], delta, out=powers[..., k])
+    out = np.matmul(powers, coefficients.transpose(2, 1, 0))  # (lanes, m, n_state)
+    for b, states in by_grid.items():
+        out[b * width : (b + 1) * width] = states.transpose(2, 0, 1)
+    out[unmoved] = initial[unmoved][:, None]
+    out[stopped] = np.nan
+    return out, stopped
+
+
 @dataclass(frozen=True)
 class BatchPropagation:
     """Result of :func:`propagate_batch`.
@@ -227,9 +291,10 @@ ADJOINT_SEGMENT_NODES = 8
 #: between samples that this replaced did.
 ADJOINT_SEGMENT_PHASE = 0.1
 #: SIMD batches of arcs whose costate passes one thread runs and whose samples, nodes and
-#: parameter rates it then handles together: numpy's cost is per call, not per arc, and
-#: the integrators run while other blocks' numpy holds the GIL.
-_BLOCK_BATCHES = 4
+#: parameter rates it then handles together: numpy's cost is per call, not per arc, and it
+#: holds the GIL, which a second thread's integrators do not need. On the bench's 112 arcs
+#: (28 batches of 4) 14 took 0.8 of the time 4 took on two threads.
+_BLOCK_BATCHES = 14
 #: Parameter rates (floats: runtime parameters x nodes) held per block; a block has fewer
 #: batches when its nodes would need more (32 MB).
 _BLOCK_RATE_FLOATS = 4_000_000
@@ -438,7 +503,12 @@ def adjoint_gradient(
     The gradient is the integral of (df/dp)^T lam: (df/dp)^T Phi^-T, smooth over the arc,
     is interpolated on segments of it (:func:`_arc_nodes`), which leaves one evaluation of
     :func:`hamgrav.core.model.parameter_rate_function` (one reverse sweep of lam . f) per
-    node, a few per radian of motion, not per interval between samples.
+    node, a few per radian of motion, not per interval between samples. When the learnable
+    term holds all the runtime parameters and reduces its rates itself
+    (:meth:`hamgrav.core.terms.GravityTerm.parameter_rate_sum`: a network, by matrix
+    products over all of a block's nodes), that sum replaces the node-by-node rates (which
+    remain for a block whose sum is not finite, to find the arcs at fault). The costate
+    pass's points come from its Taylor steps' coefficients (:func:`_propagate_lanes`).
     The arcs go in blocks of up to :data:`_BLOCK_BATCHES` SIMD batches, each handled whole by
     one thread (the threads take the next block as they finish). Memory: the states, and
     per thread one block's 42 variables at the samples and nodes and their rates
@@ -484,6 +554,12 @@ def adjoint_gradient(
         segments[pending] = _segment_counts(times[pending], forward.states[pending])
 
     shared_rate_pars: dict[int, np.ndarray] = {}
+    # with only shared parameters, all the learnable term's, the term may reduce its rates
+    # over a block's nodes itself (GravityTerm.parameter_rate_sum; None: heyoka's rates)
+    reduced_rates = None
+    if model.learnable is not None and n_par == n_shared == model.learnable.n_params:
+        reduced_rates = model.learnable.parameter_rate_sum
+    shared_params = runtime_params[:n_shared, 0] if n else np.zeros(n_shared)
     identity = np.eye(6).reshape(36, 1)
 
     def rate_pars(sel: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -505,10 +581,6 @@ def adjoint_gradient(
         node_times, node_weights, counts, grid, at_sample, at_node = _block_layout(
             times[lanes], segments[sel]
         )
-        out = np.empty((n_batches, grid.shape[1], 42, width))
-        stopped = np.zeros(lanes.size, bool)
-        # each batch's grid, start times and states as heyoka takes them, formed at once
-        grids = np.ascontiguousarray(grid.reshape(n_batches, width, -1).transpose(0, 2, 1))
         starts = times[lanes, 0].reshape(n_batches, width)
         firsts = np.ascontiguousarray(
             states0[lanes].reshape(n_batches, width, 6).transpose(0, 2, 1)
@@ -517,18 +589,20 @@ def adjoint_gradient(
         pars[:n_shared] = runtime_params[:n_shared, sel[:1]]  # the same for every arc
         own_pars = runtime_params[n_shared:, lanes]
         st = ta.state
-        for b in range(n_batches):
+
+        def prepare(b: int) -> None:
             ta.set_time(starts[b])
             st[:6] = firsts[b]
             st[6:] = identity
             if own_pars.size:
                 pars[n_shared:] = own_pars[:, b * width : (b + 1) * width]
-            out[b], stopped[b * width : (b + 1) * width] = _propagate_grid(ta, grids[b], max_steps)
+
+        out, stopped = _propagate_lanes(ta, grid, prepare, max_steps)  # (lanes, grid, 42)
         # each arc's states and transition matrices at its samples and its nodes, from its lane
         n_nodes = node_times.shape[1]
-        batch, lane = np.divmod(np.arange(n_sel)[:, None], width)
-        samples = out[batch, at_sample[:n_sel], :, lane]  # (arcs, samples, 42)
-        at_nodes = out[batch, at_node[:n_sel], :, lane]  # (arcs, nodes, 42)
+        arc = np.arange(n_sel)[:, None]
+        samples = out[arc, at_sample[:n_sel]]  # (arcs, samples, 42)
+        at_nodes = out[arc, at_node[:n_sel]]  # (arcs, nodes, 42)
         phi_samples = samples[..., 6:].reshape(n_sel, n_m, 6, 6)
         phi_nodes = at_nodes[..., 6:].reshape(n_sel, n_nodes, 6, 6)
         jumps = np.einsum("lkij,lki->lkj", phi_samples, kicks[sel])  # Phi_k^T dJ/dx_k
@@ -541,12 +615,17 @@ def adjoint_gradient(
         lam = np.concatenate([-v[..., 3:], v[..., :3]], axis=-1)
         # the rates at each arc's own nodes only (not at a lane's padding)
         real = np.arange(n_nodes) < counts[:, None]
+        good = np.all(np.isfinite(lam), axis=(1, 2)) & ~stopped[:n_sel]
+        if reduced_rates is not None and good.all():
+            # the learnable term's rates summed over all the block's nodes at once
+            shared = reduced_rates(shared_params, at_nodes[..., :3][real], lam[..., 3:][real])
+            if shared is not None and np.all(np.isfinite(shared)):
+                return shared, np.zeros((0, n_sel)), good, stopped[:n_sel]
         points = np.concatenate([at_nodes[..., :6], lam], axis=-1)[real]
         extra = {"time": node_times[real]} if rates.is_time_dependent else {}
         if n_rate_pars:
             extra["pars"] = rate_pars(sel, counts)
         values = rates(np.ascontiguousarray(points.T), batch_parallel=False, **extra)
-        good = np.all(np.isfinite(lam), axis=(1, 2)) & ~stopped[:n_sel]
         # the shared part summed over the block's nodes at once; arc by arc only for the
         # per-arc parameters, or to find the arcs whose rates are not finite
         shared = -values[:n_shared].sum(axis=1)

@@ -34,7 +34,7 @@ from typing import ClassVar, NamedTuple
 import heyoka as hy
 import numpy as np
 
-from .hamiltonian import POSITION
+from .hamiltonian import HESSIAN_ENTRIES, POSITION
 from .mascons import MasconSet
 
 __all__ = [
@@ -49,6 +49,7 @@ __all__ = [
     "NeuralPotential",
     "SphericalHarmonics",
     "SolarRadiationPressure",
+    "position_derivatives",
     "sh_coefficients_of_mascons",
     "term_from_description",
 ]
@@ -90,6 +91,25 @@ class GravityTerm(ABC):
     @abstractmethod
     def potential(self, offset: int = 0) -> hy.expression:
         """V(q[, t]) as a heyoka expression, its runtime numbers at ``par[offset:]``."""
+
+    def derivatives(self, offset: int = 0) -> tuple[list[hy.expression], list[hy.expression]]:
+        """The gradient (d/dx, d/dy, d/dz) and the Hessian's six entries
+        (:data:`hamgrav.core.hamiltonian.HESSIAN_ENTRIES`) of :meth:`potential` in the
+        position [canonical], as heyoka expressions (what the state transition equations
+        need). By default heyoka's ``diff_tensors``; a term may form them so that they share
+        more of the work (a network: its layers' values)."""
+        return position_derivatives(self.potential(offset))
+
+    def parameter_rate_sum(
+        self, params: np.ndarray, points: np.ndarray, directions: np.ndarray
+    ) -> np.ndarray | None:
+        """sum_k d (v_k . grad V(q_k)) / d theta (n_params,) over body-fixed ``points`` q_k
+        (N, 3) and ``directions`` v_k (N, 3) [canonical], at parameters ``params``
+        (n_params,): the adjoint's parameter rates of a whole block of nodes reduced at
+        once (:func:`hamgrav.core.propagation.adjoint_gradient`, v the costate's momentum
+        part). None (the default) when the term has no such reduction: the adjoint then
+        evaluates heyoka's rates node by node."""
+        return None
 
     @abstractmethod
     def key(self) -> str:
@@ -196,6 +216,20 @@ def _hash_arrays(*arrays) -> str:
     for a in arrays:
         h.update(np.ascontiguousarray(a, dtype=float).tobytes())
     return h.hexdigest()[:16]
+
+
+def position_derivatives(potential: hy.expression) -> tuple[list, list]:
+    """The gradient (3) and the Hessian's six entries (:data:`HESSIAN_ENTRIES`) of
+    ``potential`` in the position variables, by heyoka's ``diff_tensors``."""
+    tensors = hy.diff_tensors([potential], list(POSITION), diff_order=2)
+
+    def entry(*axes: int) -> hy.expression:
+        index = [0, 0, 0, 0]
+        for axis in axes:
+            index[1 + axis] += 1
+        return tensors[index]
+
+    return [entry(i) for i in range(3)], [entry(i, j) for i, j in HESSIAN_ENTRIES]
 
 
 @register_term("point-mass")
@@ -423,6 +457,174 @@ class NeuralPotential(GravityTerm):
             r2 = r2 + self.softening**2
         envelope = self.envelope_radius**3 / (r2 * hy.sqrt(r2))
         return self.scale * envelope * self.network(offset)
+
+    def member_layers_expressions(self, first: int) -> tuple:
+        """One member's layers as heyoka expressions, its parameters at ``par[first:]``:
+        (its output NN, each hidden layer's activations s_l, each layer's weights as rows
+        of ``par`` expressions, the output layer's last). The expressions are those
+        ``model.ffnn`` builds (a test holds them equal), so that a Taylor decomposition
+        holding both shares them."""
+        sizes = self.layer_sizes
+        weight, bias = first, first + self.n_weights
+        inputs, activations, weights = [x, y, z], [], []
+        for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True):
+            rows = [[hy.par[weight + i * n_in + j] for j in range(n_in)] for i in range(n_out)]
+            weight += n_in * n_out
+            layer = [
+                hy.sum([w * v for w, v in zip(row, inputs, strict=True)] + [hy.par[bias + i]])
+                for i, row in enumerate(rows)
+            ]
+            bias += n_out
+            weights.append(rows)
+            if len(weights) < len(sizes) - 1:
+                inputs = [hy.tanh(a) for a in layer]
+                activations.append(inputs)
+        return layer[0], activations, weights
+
+    def _member_derivatives(self, first: int) -> tuple:
+        """One member's NN, its gradient (3) and Hessian entries (6) in the position.
+
+        With a_l = W_l s_(l-1) + b_l, s_l = tanh(a_l) and u_l = dNN / ds_l (back from the
+        output's weights, u_(l-1) = W_l^T ((1 - s_l^2) u_l)), the gradient is
+        W_1^T ((1 - s_1^2) u_1); as affine maps have no curvature, the Hessian is
+        sum_l T_l^T diag(-2 s_l (1 - s_l^2) u_l) T_l with T_l = d a_l / d q the layers'
+        tangents (T_1 = W_1, T_l = W_l diag(1 - s_(l-1)^2) T_(l-1)): three directions
+        carried forward through the layers instead of a reverse sweep of the gradient."""
+        out, activations, weights = self.member_layers_expressions(first)
+        slopes = [[1.0 - v * v for v in s] for s in activations]
+        back = [None] * len(activations)
+        back[-1] = weights[-1][0]
+        for layer in range(len(activations) - 1, 0, -1):
+            signal = [d * u for d, u in zip(slopes[layer], back[layer], strict=True)]
+            rows = weights[layer]
+            back[layer - 1] = [
+                hy.sum([rows[i][j] * signal[i] for i in range(len(rows))])
+                for j in range(len(rows[0]))
+            ]
+        first_signal = [d * u for d, u in zip(slopes[0], back[0], strict=True)]
+        gradient = [
+            hy.sum([row[k] * g for row, g in zip(weights[0], first_signal, strict=True)])
+            for k in range(3)
+        ]
+        tangents = [weights[0]]
+        for layer in range(1, len(activations)):
+            carried = [
+                [d * t for t in row] for d, row in zip(slopes[layer - 1], tangents[-1], strict=True)
+            ]
+            tangents.append(
+                [
+                    [
+                        hy.sum([w * c[k] for w, c in zip(row, carried, strict=True)])
+                        for k in (0, 1, 2)
+                    ]
+                    for row in weights[layer]
+                ]
+            )
+        parts = {entry: [] for entry in HESSIAN_ENTRIES}
+        for s, d, u, t in zip(activations, slopes, back, tangents, strict=True):
+            curvature = [-2.0 * v * dv * uv for v, dv, uv in zip(s, d, u, strict=True)]
+            for a in range(3):
+                weighted = [c * row[a] for c, row in zip(curvature, t, strict=True)]
+                for b in range(a, 3):
+                    parts[a, b] += [w * row[b] for w, row in zip(weighted, t, strict=True)]
+        return out, gradient, [hy.sum(parts[entry]) for entry in HESSIAN_ENTRIES]
+
+    def parameter_rate_sum(
+        self, params: np.ndarray, points: np.ndarray, directions: np.ndarray
+    ) -> np.ndarray:
+        """sum_k d (v_k . grad N(q_k)) / d theta (see :meth:`GravityTerm.parameter_rate_sum`),
+        by reverse mode through the network's forward tangent: with the envelope's parts
+        alpha_k = s v_k . grad E(q_k) and beta_k = s E(q_k), it is the gradient of
+        sum_k alpha_k NN(q_k) + beta_k v_k . grad NN(q_k), each layer's weights the sum over
+        the nodes of outer products (matrix products over all the nodes at once)."""
+        points = np.asarray(points, dtype=float)
+        directions = np.asarray(directions, dtype=float)
+        r2 = np.einsum("ki,ki->k", points, points) + self.softening**2
+        envelope = self.envelope_radius**3 / (r2 * np.sqrt(r2))
+        # v . grad E = -3 E (q . v) / rho^2; the members' mean carries 1 / K
+        alpha = (
+            -3.0
+            * self.scale
+            / self.members
+            * envelope
+            * np.einsum("ki,ki->k", points, directions)
+            / r2
+        )
+        beta = self.scale / self.members * envelope
+        sizes = self.layer_sizes
+        out = []
+        for block in self.split_members(params):
+            weights, biases, k = [], [], 0
+            for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True):
+                weights.append(block[k : k + n_in * n_out].reshape(n_out, n_in))
+                k += n_in * n_out
+            for n_out in sizes[1:]:
+                biases.append(block[k : k + n_out])
+                k += n_out
+            # forward: values x_l and tangents t_l (along v) of each layer's output, nodes first
+            values, tangents, slopes = [points], [directions], []
+            for w, b in zip(weights[:-1], biases[:-1], strict=True):
+                s = np.tanh(values[-1] @ w.T + b)
+                d = 1.0 - s * s
+                slopes.append(d)
+                tangents.append(d * (tangents[-1] @ w.T))
+                values.append(s)
+            # reverse: adjoints of each layer's output value and tangent
+            w_out = weights[-1][0]
+            value_bar = alpha[:, None] * w_out
+            tangent_bar = beta[:, None] * w_out
+            grad_w = [None] * len(weights)
+            grad_b = [None] * len(weights)
+            grad_w[-1] = (alpha @ values[-1] + beta @ tangents[-1])[None, :]
+            grad_b[-1] = np.array([alpha.sum()])
+            for layer in range(len(weights) - 2, -1, -1):
+                s, d = values[layer + 1], slopes[layer]
+                pre_tangent = tangents[layer] @ weights[layer].T  # d a / d q . v
+                pre_bar = value_bar * d - 2.0 * tangent_bar * pre_tangent * s * d
+                pre_tangent_bar = tangent_bar * d
+                grad_w[layer] = pre_bar.T @ values[layer] + pre_tangent_bar.T @ tangents[layer]
+                grad_b[layer] = pre_bar.sum(axis=0)
+                if layer:
+                    value_bar = pre_bar @ weights[layer]
+                    tangent_bar = pre_tangent_bar @ weights[layer]
+            out.append(np.concatenate([g.ravel() for g in grad_w] + grad_b))
+        return np.concatenate(out)
+
+    def derivatives(self, offset: int = 0) -> tuple[list[hy.expression], list[hy.expression]]:
+        """The gradient and Hessian of N = s E NN, E = (R_w / rho)^3, by the product rule from
+        each member's (:meth:`_member_derivatives`) and the envelope's closed forms."""
+        members = [
+            self._member_derivatives(offset + k * self.member_params) for k in range(self.members)
+        ]
+        mean = 1.0 / self.members
+
+        def averaged(values):
+            return values[0] if self.members == 1 else hy.sum(list(values)) * mean
+
+        net = averaged([m[0] for m in members])
+        net_gradient = [averaged([m[1][k] for m in members]) for k in range(3)]
+        net_hessian = [averaged([m[2][k] for m in members]) for k in range(6)]
+        q = (x, y, z)
+        r2 = x * x + y * y + z * z
+        if self.softening:
+            r2 = r2 + self.softening**2
+        cube = self.envelope_radius**3
+        rho3 = r2 * hy.sqrt(r2)
+        envelope = cube / rho3
+        # grad E = -3 E q / rho^2, Hess E = 15 E q q^T / rho^4 - 3 E I / rho^2
+        slope = -3.0 * envelope / r2
+        envelope_gradient = [slope * qi for qi in q]
+        bend = 15.0 * envelope / (r2 * r2)
+        gradient = [
+            self.scale * (net * g_e + envelope * g_n)
+            for g_e, g_n in zip(envelope_gradient, net_gradient, strict=True)
+        ]
+        hessian = []
+        for (a, b), h_n in zip(HESSIAN_ENTRIES, net_hessian, strict=True):
+            h_e = bend * q[a] * q[b] + slope if a == b else bend * q[a] * q[b]
+            cross = envelope_gradient[a] * net_gradient[b] + net_gradient[a] * envelope_gradient[b]
+            hessian.append(self.scale * (net * h_e + cross + envelope * h_n))
+        return gradient, hessian
 
     def initial_params(self, seed: int = 0) -> np.ndarray:
         """Glorot-uniform weights (member k seeded by ``seed + k``), zero biases."""
