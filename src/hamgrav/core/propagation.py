@@ -58,7 +58,6 @@ def _propagate_grid(ta, grid: np.ndarray, max_steps: int | None) -> tuple[np.nda
     return res[-1], exceeded
 
 
-_STEP_LIMIT = hy.taylor_outcome.step_limit
 _TIME_LIMIT = hy.taylor_outcome.time_limit
 
 
@@ -77,37 +76,41 @@ def _propagate_lanes(
     all such batches are then the polynomials' values, one matrix product of the powers of
     t - t_start by the coefficients: ``propagate_grid``'s dense output to rounding, which
     it evaluates point by point, in as long as the step itself for 42 variables at 50
-    points. A batch that takes more steps, or fails, goes again through
-    :func:`_propagate_grid`. (``step`` would give every step's coefficients, but it holds
-    the GIL; ``propagate_until`` releases it, so threads propagate side by side.)"""
+    points. A batch that needs more steps (its first is tried with a cap of one), or
+    fails, goes again through :func:`_propagate_grid` (once most batches have needed more,
+    the rest go there directly). ``step`` would give every step's coefficients, but it holds
+    the GIL; ``propagate_until`` releases it, so threads propagate side by side."""
     n_lanes, m = grid.shape
     width, order, dim = ta.batch_size, ta.order, ta.dim
-    cap = 0 if max_steps is None else int(max_steps)
     coefficients = np.zeros((dim, order + 1, n_lanes))  # zero where heyoka's grid gives them
     start = np.empty(n_lanes)
     initial = np.empty((n_lanes, dim))
     stopped = np.zeros(n_lanes, bool)
     unmoved = np.zeros(n_lanes, bool)  # lanes whose grid is their start alone: no step
     by_grid = {}
+    hits = misses = 0
     for b in range(n_lanes // width):
         lanes = slice(b * width, (b + 1) * width)
         prepare(b)
         start[lanes] = ta.time
         initial[lanes] = ta.state.T
-        ta.propagate_until(np.ascontiguousarray(grid[lanes, -1]), max_steps=cap, write_tc=True)
-        kinds, _, _, steps = zip(*ta.propagate_res, strict=True)
-        if _STEP_LIMIT in kinds:
-            stopped[lanes] = True
-            continue
-        if max(steps) <= 1 and kinds.count(_TIME_LIMIT) == width:
-            coefficients[..., lanes] = ta.tc
-            if min(steps) == 0:
-                unmoved[lanes] = np.asarray(steps) == 0
-        else:  # several steps, or a failure: heyoka's dense output over all of them
+        # one step at most: a batch that needs more wastes one step, not its whole arcs;
+        # when most batches need more, the rest go to heyoka's grid directly
+        if misses <= 2 * hits + 1:
+            ta.propagate_until(np.ascontiguousarray(grid[lanes, -1]), max_steps=1, write_tc=True)
+            kinds, _, _, steps = zip(*ta.propagate_res, strict=True)
+            if kinds.count(_TIME_LIMIT) == width:
+                coefficients[..., lanes] = ta.tc
+                if min(steps) == 0:
+                    unmoved[lanes] = np.asarray(steps) == 0
+                hits += 1
+                continue
+            misses += 1
             prepare(b)
-            by_grid[b], stopped[lanes] = _propagate_grid(
-                ta, np.ascontiguousarray(grid[lanes].T), max_steps
-            )
+        # several steps, or a failure: heyoka's dense output over all of them
+        by_grid[b], stopped[lanes] = _propagate_grid(
+            ta, np.ascontiguousarray(grid[lanes].T), max_steps
+        )
     delta = grid - start[:, None]
     powers = np.empty((n_lanes, m, order + 1))
     powers[..., 0] = 1.0
@@ -640,7 +643,11 @@ def adjoint_gradient(
     if len(pending) and n_m > 1:
         rate_floats = n_par * width * int(segments.max()) * ADJOINT_SEGMENT_NODES  # a batch's
         arcs_per_block = width * int(np.clip(_BLOCK_RATE_FLOATS // rate_floats, 1, _BLOCK_BATCHES))
-        blocks = [pending[i : i + arcs_per_block] for i in range(0, len(pending), arcs_per_block)]
+        # each block takes every n_blocks-th batch of neighbouring arcs: arcs come in orbit
+        # order, and a block of low, many-step orbits alone would leave a thread idle
+        batches = [pending[i : i + width] for i in range(0, len(pending), width)]
+        n_blocks = -(-len(pending) // arcs_per_block)
+        blocks = [np.concatenate(batches[j::n_blocks]) for j in range(n_blocks)]
         n_threads = max(1, min(int(threads or os.cpu_count() or 1), len(blocks)))
         queue = iter(range(len(blocks)))
 
