@@ -70,7 +70,6 @@ def transition_equations(
         second[i, j] = second[j, i] = entry
     # q' = p + (y, -x, 0), p' = (p_y, -p_x, 0) + grad V: the same flow as equations_of_motion
     rates = [px + y, py - x, pz, py + gradient[0], -px + gradient[1], gradient[2]]
-    turn = {(0, 1): 1, (1, 0): -1}  # d (y, -x, 0) / d (x, y, z), likewise in p
     phi = [[hy.expression(f"phi_{i}{j}") for j in range(6)] for i in range(6)]
     system = list(zip(STATE_VARIABLES, rates, strict=True))
     for i in range(6):
@@ -79,9 +78,11 @@ def transition_equations(
                 parts = [phi[i + 3][j]]
             else:  # d p_i' / d x_k: the Hessian in q, the rotation in p
                 parts = [second[i - 3, k] * phi[k][j] for k in range(3)]
-            for (a, k), sign in turn.items():
-                if a == i % 3:
-                    near = phi[k + 3 * (i >= 3)][j]
-                    parts.append(near if sign > 0 else -near)
+            # d (y, -x, 0) / d (x, y, z): +1 for the first row, -1 for the second
+            offset = 3 * (i >= 3)
+            if i % 3 == 0:
+                parts.append(phi[offset + 1][j])
+            elif i % 3 == 1:
+                parts.append(-phi[offset][j])
             system.append((phi[i][j], hy.sum(parts)))
     return system

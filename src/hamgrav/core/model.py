@@ -121,13 +121,18 @@ class Model:
         plus learnable, without per-trajectory terms)."""
         if which not in ("all", "known", "learnable", "total"):
             raise ValueError(f"which must be all, known, learnable or total, got {which!r}")
-        out = [] if which == "learnable" else [t.potential() for t in self.known]
+        return [term.potential(offset) for term, offset in self._terms_at_offsets(which)]
+
+    def _terms_at_offsets(self, which: str = "all") -> list[tuple[GravityTerm, int]]:
+        """The terms of :meth:`potentials` ``which``, each with the offset of its runtime
+        parameters."""
+        out = [] if which == "learnable" else [(t, 0) for t in self.known]
         if which != "known" and self.learnable is not None:
-            out.append(self.learnable.potential(0))
+            out.append((self.learnable, 0))
         if which == "all":
             offset = self.n_learn
             for term in self.per_trajectory:
-                out.append(term.potential(offset))
+                out.append((term, offset))
                 offset += term.trajectory_params
         return out
 
@@ -136,13 +141,7 @@ class Model:
         (:data:`hamgrav.core.hamiltonian.HESSIAN_ENTRIES`) of the whole potential (every
         term, as :meth:`potentials` "all"), each term's as it forms them
         (:meth:`hamgrav.core.terms.GravityTerm.derivatives`)."""
-        parts = [t.derivatives() for t in self.known]
-        if self.learnable is not None:
-            parts.append(self.learnable.derivatives(0))
-        offset = self.n_learn
-        for term in self.per_trajectory:
-            parts.append(term.derivatives(offset))
-            offset += term.trajectory_params
+        parts = [term.derivatives(offset) for term, offset in self._terms_at_offsets()]
         if not parts:
             zero = hy.expression(0.0)
             return [zero] * 3, [zero] * 6

@@ -451,12 +451,16 @@ class NeuralPotential(GravityTerm):
             outputs.append(out)
         return outputs[0] if self.members == 1 else hy.sum(outputs) / self.members
 
-    def potential(self, offset: int = 0) -> hy.expression:
+    def _envelope(self) -> tuple[hy.expression, hy.expression]:
+        """(rho^2, E = (R_w / rho)^3) as heyoka expressions: the same for the potential and
+        its derivatives, so that a decomposition holding both shares them."""
         r2 = x * x + y * y + z * z
         if self.softening:
             r2 = r2 + self.softening**2
-        envelope = self.envelope_radius**3 / (r2 * hy.sqrt(r2))
-        return self.scale * envelope * self.network(offset)
+        return r2, self.envelope_radius**3 / (r2 * hy.sqrt(r2))
+
+    def potential(self, offset: int = 0) -> hy.expression:
+        return self.scale * self._envelope()[1] * self.network(offset)
 
     def member_layers_expressions(self, first: int) -> tuple:
         """One member's layers as heyoka expressions, its parameters at ``par[first:]``:
@@ -551,23 +555,18 @@ class NeuralPotential(GravityTerm):
             / r2
         )
         beta = self.scale / self.members * envelope
-        sizes = self.layer_sizes
         out = []
         for block in self.split_members(params):
-            weights, biases, k = [], [], 0
-            for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True):
-                weights.append(block[k : k + n_in * n_out].reshape(n_out, n_in))
-                k += n_in * n_out
-            for n_out in sizes[1:]:
-                biases.append(block[k : k + n_out])
-                k += n_out
-            # forward: values x_l and tangents t_l (along v) of each layer's output, nodes first
-            values, tangents, slopes = [points], [directions], []
+            weights, biases = self.member_arrays(block)
+            # forward: values x_l and tangents t_l (along v) of each layer's output, and the
+            # tangents of its input to tanh, nodes first
+            values, tangents, slopes, pre_tangents = [points], [directions], [], []
             for w, b in zip(weights[:-1], biases[:-1], strict=True):
                 s = np.tanh(values[-1] @ w.T + b)
                 d = 1.0 - s * s
                 slopes.append(d)
-                tangents.append(d * (tangents[-1] @ w.T))
+                pre_tangents.append(tangents[-1] @ w.T)
+                tangents.append(d * pre_tangents[-1])
                 values.append(s)
             # reverse: adjoints of each layer's output value and tangent
             w_out = weights[-1][0]
@@ -579,8 +578,7 @@ class NeuralPotential(GravityTerm):
             grad_b[-1] = np.array([alpha.sum()])
             for layer in range(len(weights) - 2, -1, -1):
                 s, d = values[layer + 1], slopes[layer]
-                pre_tangent = tangents[layer] @ weights[layer].T  # d a / d q . v
-                pre_bar = value_bar * d - 2.0 * tangent_bar * pre_tangent * s * d
+                pre_bar = value_bar * d - 2.0 * tangent_bar * pre_tangents[layer] * s * d
                 pre_tangent_bar = tangent_bar * d
                 grad_w[layer] = pre_bar.T @ values[layer] + pre_tangent_bar.T @ tangents[layer]
                 grad_b[layer] = pre_bar.sum(axis=0)
@@ -605,12 +603,7 @@ class NeuralPotential(GravityTerm):
         net_gradient = [averaged([m[1][k] for m in members]) for k in range(3)]
         net_hessian = [averaged([m[2][k] for m in members]) for k in range(6)]
         q = (x, y, z)
-        r2 = x * x + y * y + z * z
-        if self.softening:
-            r2 = r2 + self.softening**2
-        cube = self.envelope_radius**3
-        rho3 = r2 * hy.sqrt(r2)
-        envelope = cube / rho3
+        r2, envelope = self._envelope()
         # grad E = -3 E q / rho^2, Hess E = 15 E q q^T / rho^4 - 3 E I / rho^2
         slope = -3.0 * envelope / r2
         envelope_gradient = [slope * qi for qi in q]
@@ -690,18 +683,25 @@ class NeuralPotential(GravityTerm):
     def title(self) -> str:
         return "network"
 
-    def member_layers(self, block: np.ndarray) -> dict:
-        """One member's weights (out x in, layer by layer) and biases from its parameter block
-        (heyoka ``model.ffnn`` layout: all weights row-major, then all biases)."""
+    def member_arrays(self, block: np.ndarray) -> tuple[list, list]:
+        """One member's weights (out x in arrays, layer by layer) and biases from its
+        parameter block (heyoka ``model.ffnn`` layout: all weights row-major, then all
+        biases); views into ``block``."""
         sizes = self.layer_sizes
         weights, biases, k = [], [], 0
         for n_in, n_out in zip(sizes[:-1], sizes[1:], strict=True):
-            weights.append(block[k : k + n_in * n_out].reshape(n_out, n_in).tolist())
+            weights.append(block[k : k + n_in * n_out].reshape(n_out, n_in))
             k += n_in * n_out
         for n_out in sizes[1:]:
-            biases.append(block[k : k + n_out].tolist())
+            biases.append(block[k : k + n_out])
             k += n_out
-        return {"weights": weights, "biases": biases}
+        return weights, biases
+
+    def member_layers(self, block: np.ndarray) -> dict:
+        """One member's weights (out x in, layer by layer) and biases from its parameter block
+        (:meth:`member_arrays`), as lists."""
+        weights, biases = self.member_arrays(np.asarray(block, dtype=float))
+        return {"weights": [w.tolist() for w in weights], "biases": [b.tolist() for b in biases]}
 
     def export_json(self, params=None) -> dict:
         return {
