@@ -9,10 +9,13 @@ of ``--repeat`` calls after a first call that compiles; the two gradients are co
 ``--workers N`` also times the adjoint on a LocalCluster of N single-threaded worker processes
 (``hamgrav.fit.distributed``: the arcs split into chunks held by the workers; threads of one
 process share the GIL between heyoka's calls, processes do not), and ``--copies K`` repeats
-the 112 arcs K times.
+the 112 arcs K times. ``--sh 16`` adds SH models (parameters 1e-4), ``--threads 1`` times one
+thread, and ``--orbits``, ``--arcs-per-orbit`` and ``--cadence`` change the tracking (longer
+arcs take several Taylor steps).
 
     python bench/gradient.py [--hidden 24,24 16,16] [--tol 1e-10] [--adjoint-tol 1e-8] [--repeat 3]
                              [--workers 2] [--copies 4] [--json] [--export-peer arcs.npz]
+                             [--sh 16] [--threads 1] [--orbits 8 --arcs-per-orbit 2 --cadence 300]
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from hamgrav.bodies.interiors import build_truth
 from hamgrav.core import propagation
 from hamgrav.core.model import DEFAULT_FIT_TOLERANCE, Model
 from hamgrav.core.problem import ArcProblem
-from hamgrav.core.terms import NeuralPotential, PointMass
+from hamgrav.core.terms import NeuralPotential, PointMass, SphericalHarmonics
 from hamgrav.experiments.runner import dask_client
 from hamgrav.fit.distributed import DistributedArcProblem
 from hamgrav.sim.tracking import TrackingConfig, orbit_grid, simulate_orbits
@@ -47,13 +50,12 @@ def _best(call, repeat: int) -> float:
     return best
 
 
-def _network_row(arcs, hidden: str, args, client) -> dict:
-    """The figures of one network shape ("24,24")."""
-    term = NeuralPotential(tuple(int(h) for h in hidden.split(",")))
+def _row(arcs, name: str, term, theta, args, client) -> dict:
+    """The figures of one learnable term (a network "24,24", or "sh16")."""
     model = Model((PointMass(),), term)
-    theta = term.initial_params(0)
-    adjoint = ArcProblem(model, arcs, gradient_method="adjoint", tol=args.tol)
-    forward = ArcProblem(model, arcs, gradient_method="forward", tol=args.tol)
+    threads = args.threads or None
+    adjoint = ArcProblem(model, arcs, gradient_method="adjoint", tol=args.tol, threads=threads)
+    forward = ArcProblem(model, arcs, gradient_method="forward", tol=args.tol, threads=threads)
     g_adj = adjoint.gradient(theta)[1]
     g_fwd = forward.gradient(theta)[1]
     times = {
@@ -62,14 +64,14 @@ def _network_row(arcs, hidden: str, args, client) -> dict:
         "normal_equations": _best(lambda: forward.normal_equations(theta), args.repeat),
     }
     row = {
-        "hidden": hidden,
+        "hidden": name,
         "n_params": term.n_params,
         "n_arcs": arcs.n_arcs,
         "tol": args.tol,
         "adjoint_tol": args.adjoint_tol,
         "gradient_relative_difference": float(np.abs(g_adj - g_fwd).max() / np.abs(g_fwd).max()),
         "simd_batch": hy.recommended_simd_size(),
-        "threads": os.cpu_count(),
+        "threads": args.threads or os.cpu_count(),
     }
     if client is not None:
         cluster = DistributedArcProblem(
@@ -87,7 +89,7 @@ def _network_row(arcs, hidden: str, args, client) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--hidden", nargs="+", default=["24,24", "16,16"])
+    parser.add_argument("--hidden", nargs="*", default=["24,24", "16,16"])
     parser.add_argument(
         "--tol",
         type=float,
@@ -101,6 +103,13 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=0, help="LocalCluster worker processes")
     parser.add_argument("--copies", type=int, default=1, help="the 112 arcs, repeated")
     parser.add_argument(
+        "--sh", type=int, nargs="*", default=[], help="also SH models of these degrees"
+    )
+    parser.add_argument("--threads", type=int, default=0, help="threads (0: all cores)")
+    parser.add_argument("--orbits", type=int, default=16)
+    parser.add_argument("--arcs-per-orbit", type=int, default=7)
+    parser.add_argument("--cadence", type=float, default=14.0, help="sample spacing [s]")
+    parser.add_argument(
         "--export-peer",
         metavar="NPZ",
         help="also write the arcs' initial states and sample times (canonical) for "
@@ -112,20 +121,31 @@ def main() -> None:
     propagation.ADJOINT_TOLERANCE = args.adjoint_tol
     truth = build_truth(load_body("itokawa"), "head-tail", n_mascons=100, seed=0)
     arcs = simulate_orbits(
-        truth, orbit_grid(16, (1.2, 2.0), (10.0, 80.0)), TrackingConfig(arcs_per_orbit=7), seed=0
+        truth,
+        orbit_grid(args.orbits, (1.2, 2.0), (10.0, 80.0)),
+        TrackingConfig(arcs_per_orbit=args.arcs_per_orbit, cadence_s=args.cadence),
+        seed=0,
     )
     arcs = arcs.subset(np.tile(np.arange(arcs.n_arcs), args.copies))
     if args.export_peer:
         np.savez(args.export_peer, states0=arcs.states[:, 0], times=arcs.times)
     with dask_client(args.workers) if args.workers else contextlib.nullcontext() as client:
-        rows = [_network_row(arcs, hidden, args, client) for hidden in args.hidden]
+        rows = []
+        for hidden in args.hidden:
+            term = NeuralPotential(tuple(int(h) for h in hidden.split(",")))
+            rows.append(_row(arcs, hidden, term, term.initial_params(0), args, client))
+        for degree in args.sh:
+            term = SphericalHarmonics(degree, 1.0)
+            theta = np.full(term.n_params, 1e-4)
+            rows.append(_row(arcs, f"sh{degree}", term, theta, args, client))
     if args.json:
         for row in rows:
             print(json.dumps(row), flush=True)
     if not args.json:
         print(
             f"{arcs.n_arcs} Itokawa arcs x {arcs.samples_per_arc} samples, SIMD batch "
-            f"{hy.recommended_simd_size()}, {os.cpu_count()} threads, tolerance {args.tol:g} "
+            f"{hy.recommended_simd_size()}, {args.threads or os.cpu_count()} threads, tolerance "
+            f"{args.tol:g} "
             f"(adjoint's transition matrix {args.adjoint_tol:g}); arcs/s (best of {args.repeat})"
         )
         cluster = f"adjoint x{args.workers}" if args.workers else ""
